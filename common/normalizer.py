@@ -1,0 +1,45 @@
+"""Running mean and variance, for normalising observations (and goals) and scaling rewards.
+
+Shared by all three scripts because a saved model is only usable together with the statistics
+its inputs were normalised by: the scripts save ``state_dict()`` beside the weights and evaluate
+with the statistics frozen.
+
+The update merges the statistics of a new batch into the running ones exactly (Chan et al.'s
+parallel algorithm), so feeding the data in batches gives the same mean and variance as
+``numpy.mean`` / ``numpy.var`` over all of it at once.
+"""
+
+import numpy as np
+
+
+class RunningMeanStd:
+    """Mean and (population) variance of every sample seen by ``update``, feature-wise.
+
+    ``normalize(x) = clip((x - mean) / sqrt(var + eps), -clip, clip)``.
+    """
+
+    def __init__(self, shape: tuple[int, ...] = (), eps: float = 1e-8, clip: float = 10.0):
+        self.mean = np.zeros(shape, np.float64)
+        self.var = np.ones(shape, np.float64)
+        self.count = 0.0
+        self.eps, self.clip = eps, clip
+
+    def update(self, x: np.ndarray) -> None:
+        """Add a batch ``x`` of shape ``(B, *shape)``."""
+        x = np.asarray(x, np.float64).reshape(-1, *self.mean.shape)
+        n, batch_mean, batch_var = x.shape[0], x.mean(axis=0), x.var(axis=0)
+        total = self.count + n
+        delta = batch_mean - self.mean
+        m2 = self.var * self.count + batch_var * n + delta**2 * self.count * n / total
+        self.mean, self.var, self.count = self.mean + delta * n / total, m2 / total, total
+
+    def normalize(self, x: np.ndarray) -> np.ndarray:
+        z = (np.asarray(x, np.float64) - self.mean) / np.sqrt(self.var + self.eps)
+        return np.clip(z, -self.clip, self.clip).astype(np.float32)
+
+    def state_dict(self) -> dict:
+        return {"mean": self.mean.copy(), "var": self.var.copy(), "count": self.count, "clip": self.clip}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.mean, self.var = np.asarray(state["mean"]), np.asarray(state["var"])
+        self.count, self.clip = float(state["count"]), float(state["clip"])

@@ -1,0 +1,46 @@
+"""Shared test helpers: run a script in a subprocess and read back its TensorBoard scalars."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def run_script(script: str, log_dir: Path, *flags: str, timeout: int = 600) -> subprocess.CompletedProcess:
+    """``python {script} --log-dir {log_dir} {flags}`` from the project root, output captured."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}
+    cmd = [sys.executable, str(ROOT / script), "--log-dir", str(log_dir), *flags]
+    return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+
+
+def run_dirs(log_dir: Path) -> list[Path]:
+    return sorted(p for p in Path(log_dir).iterdir() if p.is_dir())
+
+
+def scalars(run_dir: Path) -> dict[str, list[tuple[int, float]]]:
+    """Every scalar tag of a run folder's event file(s): tag -> [(step, value), ...]."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(run_dir), size_guidance={"scalars": 0})
+    acc.Reload()
+    return {tag: [(e.step, e.value) for e in acc.Scalars(tag)] for tag in acc.Tags()["scalars"]}
+
+
+def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> None:
+    """Bad input: non-zero exit, no traceback, one 'error:' line naming the problem."""
+    assert result.returncode != 0, result.stdout
+    assert "Traceback" not in result.stderr, result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.startswith("error:")]
+    assert len(lines) == 1, result.stderr
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+
+
+@pytest.fixture(scope="session")
+def root() -> Path:
+    return ROOT

@@ -1,0 +1,105 @@
+"""ppo_kl.py: smoke runs on Hopper-v5 and FetchReach-v4, the autoreset handling, seeding, bad input."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+import ppo_kl
+from common.normalizer import RunningMeanStd
+from conftest import assert_clean_error, run_dirs, run_script, scalars
+from toy_envs import CountingEnv
+
+PPO_TAGS = {
+    "charts/episodic_return", "charts/episodic_length", "charts/policy_entropy", "charts/SPS",
+    "eval/episodic_return", "losses/policy_loss", "losses/value_loss", "losses/approx_kl", "losses/beta",
+}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "env_id, flags",
+    [
+        ("Hopper-v5", ["--num-envs", "2", "--num-steps", "128", "--total-timesteps", "768"]),
+        ("FetchReach-v4", ["--num-envs", "2", "--num-steps", "50", "--total-timesteps", "200"]),
+    ],
+)
+def test_smoke_logs_tags_and_saved_model_evaluates(tmp_path, env_id, flags):
+    result = run_script("ppo_kl.py", tmp_path, "--env-id", env_id, *flags, "--num-minibatches", "4",
+                        "--update-epochs", "2", "--eval-freq", "100", "--eval-episodes", "2", "--save-model")  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    (run_dir,) = run_dirs(tmp_path)
+    tags = scalars(run_dir)
+    expected = PPO_TAGS | ({"charts/success_rate", "eval/success_rate"} if env_id.startswith("Fetch") else set())
+    assert expected <= set(tags), expected - set(tags)
+    assert len(tags["losses/beta"]) >= 2 and len(tags["eval/episodic_return"]) >= 2
+
+    ckpt = torch.load(run_dir / "model.pt", weights_only=False)
+    obs_rms = RunningMeanStd(ckpt["obs_rms"]["mean"].shape)
+    obs_rms.load_state_dict(ckpt["obs_rms"])
+    assert obs_rms.count > 0
+    agent = ppo_kl.Agent(obs_rms.mean.shape[0], ckpt["agent"]["actor_logstd"].shape[1])
+    agent.load_state_dict(ckpt["agent"])
+    returns, successes = ppo_kl.evaluate(agent, obs_rms, env_id, episodes=2, seed=0)
+    assert len(returns) == 2 and np.all(np.isfinite(returns))
+    assert len(successes) == (2 if env_id.startswith("Fetch") else 0)
+
+
+def test_no_transition_crosses_a_reset_and_truncation_bootstraps_from_final_obs():
+    torch.manual_seed(0)
+    envs = gym.vector.SyncVectorEnv(
+        [lambda: gym.wrappers.RecordEpisodeStatistics(CountingEnv(limit=5)) for _ in range(3)],
+        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
+    )
+    agent = ppo_kl.Agent(2, 1)
+    with torch.no_grad():
+        agent.actor_logstd.fill_(0.5)  # wide enough that some episodes terminate early
+    raw_obs, _ = envs.reset(seed=0)
+    obs_rms = RunningMeanStd((2,))  # never updated: normalisation is the identity here
+    ro, last_raw, episodes = ppo_kl.collect_rollout(envs, agent, obs_rms, raw_obs, 40, update_obs_rms=False)
+    obs, final_obs, ends, terms = ro["obs"], ro["final_obs"], ro["episode_ends"].bool(), ro["terminations"].bool()
+    assert terms.any() and (ends & ~terms).any(), "the rollout should hold both kinds of episode end"
+    assert len(episodes) == int(ends.sum())
+    nxt = torch.cat([obs[1:], torch.as_tensor(last_raw, dtype=torch.float32)[None]])
+    # within an episode the next row is the same episode one step later
+    assert torch.equal(nxt[~ends][:, 0], obs[~ends][:, 0]) and torch.equal(nxt[~ends][:, 1], obs[~ends][:, 1] + 1)
+    # where an episode ended, final_obs is its true last observation and the next row a fresh episode
+    assert torch.equal(final_obs[ends][:, 0], obs[ends][:, 0]) and torch.equal(final_obs[ends][:, 1], obs[ends][:, 1] + 1)
+    assert torch.all(nxt[ends][:, 1] == 0) and torch.all(nxt[ends][:, 0] != obs[ends][:, 0])
+    assert torch.all(final_obs[ends & ~terms][:, 1] == 5)  # truncated by the time limit
+
+    # bootstrap: with a known V, lam = 0 gives delta_t exactly, V(final_obs) after a truncation
+    agent.get_value = lambda x: 10.0 * x[..., 1] + x[..., 0]
+    gamma = 0.9
+    b = ppo_kl.make_batch(agent, ro, torch.as_tensor(last_raw, dtype=torch.float32), gamma, 0.0)
+    v = agent.get_value(obs)
+    expected_next = torch.where(ends, agent.get_value(final_obs), agent.get_value(nxt))
+    torch.testing.assert_close(b["next_values"], expected_next.flatten())
+    delta = ro["rewards"] + gamma * (~terms) * expected_next - v
+    torch.testing.assert_close(b["advantages"], delta.flatten())
+    trunc = (ends & ~terms).flatten()
+    torch.testing.assert_close(b["advantages"][trunc], (1.0 + gamma * 50.0 + gamma * final_obs[ends & ~terms][:, 0] - v.flatten()[trunc]))
+
+
+def test_same_seed_same_first_update(tmp_path):
+    flags = ["--env-id", "Hopper-v5", "--num-envs", "2", "--num-steps", "64", "--total-timesteps", "128",
+             "--num-minibatches", "2", "--update-epochs", "2", "--eval-episodes", "1"]  # fmt: skip
+    logs = []
+    for name in ("a", "b"):
+        assert run_script("ppo_kl.py", tmp_path / name, *flags).returncode == 0
+        (run_dir,) = run_dirs(tmp_path / name)
+        logs.append(scalars(run_dir))
+    for tag in ("losses/policy_loss", "losses/value_loss", "losses/approx_kl"):
+        assert logs[0][tag][0] == logs[1][tag][0], tag
+
+
+@pytest.mark.parametrize(
+    "flags, needle",
+    [
+        (["--env-id", "NoSuchEnv-v0"], "NoSuchEnv-v0"),
+        (["--total-timesteps", "0"], "--total-timesteps"),
+        (["--num-minibatches", "7"], "minibatches"),
+    ],
+)
+def test_bad_input_fails_with_one_clear_line(tmp_path, flags, needle):
+    assert_clean_error(run_script("ppo_kl.py", tmp_path, *flags, timeout=60), needle)
+    assert not (tmp_path.exists() and run_dirs(tmp_path)), "no run folder for rejected input"
