@@ -21,8 +21,11 @@ truncated episode (time limit); a terminated one (the hopper fell) does not boot
 Goal tasks (FetchReach) have a Dict observation, flattened here into one policy input.
 """
 
+import contextlib
+import io
 import os
 import random
+import re
 import sys
 import time
 from dataclasses import dataclass
@@ -94,6 +97,8 @@ class Args:
     """initial KL penalty coefficient beta (the PPO paper: insensitive)"""
     kl_early_stop: float | None = None
     """stop the epochs of an update once the mean KL exceeds this many times kl_target (None: never)"""
+    init_log_std: float = 0.0
+    """initial log std of the Gaussian policy"""
     vf_coef: float = 0.5
     """coefficient of the value loss"""
     max_grad_norm: float = 0.5
@@ -116,6 +121,18 @@ def fail(message: str) -> None:
     """Bad input: one clear line, no traceback, non-zero exit."""
     print(f"error: {message}", file=sys.stderr)
     sys.exit(2)
+
+
+def parse_args() -> Args:
+    """``tyro.cli``, with a parse error reported as one line (tyro draws a box)."""
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            return tyro.cli(Args)
+    except SystemExit as e:
+        if e.code:
+            fail(" ".join(re.sub(r"[│╭╮╰╯─]", " ", captured.getvalue()).split()))
+        raise
 
 
 def check_args(args: Args) -> None:
@@ -155,7 +172,7 @@ def layer_init(layer: nn.Linear, std: float = np.sqrt(2), bias_const: float = 0.
 class Agent(nn.Module):
     """Gaussian policy pi_theta(a|s) = N(mu_theta(s), diag(exp(log_std))^2) and baseline V_phi(s)."""
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden: int = 64):
+    def __init__(self, obs_dim: int, act_dim: int, hidden: int = 64, init_log_std: float = 0.0):
         super().__init__()
         self.critic = nn.Sequential(
             layer_init(nn.Linear(obs_dim, hidden)), nn.Tanh(),
@@ -167,7 +184,7 @@ class Agent(nn.Module):
             layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
             layer_init(nn.Linear(hidden, act_dim), std=0.01),
         )  # fmt: skip
-        self.actor_logstd = nn.Parameter(torch.zeros(1, act_dim))  # state-independent log std
+        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))  # state-independent log std
 
     def get_value(self, x: torch.Tensor) -> torch.Tensor:
         return self.critic(x).squeeze(-1)
@@ -324,7 +341,7 @@ def evaluate(agent: Agent, obs_rms: RunningMeanStd, env_id: str, episodes: int, 
 
 
 if __name__ == "__main__":
-    args = tyro.cli(Args)
+    args = parse_args()
     args.batch_size = args.num_envs * args.num_steps
     args.minibatch_size = args.batch_size // max(args.num_minibatches, 1)
     args.num_iterations = args.total_timesteps // max(args.batch_size, 1)
@@ -353,7 +370,7 @@ if __name__ == "__main__":
     obs_dim, act_dim = envs.single_observation_space.shape[0], envs.single_action_space.shape[0]
     envs.single_action_space.seed(args.seed)
 
-    agent = Agent(obs_dim, act_dim)
+    agent = Agent(obs_dim, act_dim, init_log_std=args.init_log_std)
     optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
     obs_rms = RunningMeanStd((obs_dim,))
     ret_rms, running_return = RunningMeanStd(()), np.zeros(args.num_envs)  # for reward scaling

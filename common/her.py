@@ -86,7 +86,8 @@ class HerReplayBuffer:
         self.ep_length = np.zeros(shape, np.int64)  # its length once finished, 0 before (never sampled)
         self.current_start = np.zeros(num_envs, np.int64)  # row where each env's unfinished episode starts
         self.current_length = np.zeros(num_envs, np.int64)
-        self.pos = 0
+        self.pos, self.filled = 0, 0  # next row to write, rows written so far (at most rows)
+        self._sampleable = None  # flat indices of sampleable transitions, cached between adds
 
     def add(self, obs, action, reward, next_obs, terminated, truncated, achieved_goal=None, next_achieved_goal=None, desired_goal=None):
         """Store one vector-env step: every argument has leading dimension ``num_envs``.
@@ -109,11 +110,16 @@ class HerReplayBuffer:
             length = self.current_length[e]
             self.ep_length[(self.current_start[e] + np.arange(length)) % self.rows, e] = length
             self.current_start[e], self.current_length[e] = (p + 1) % self.rows, 0
-        self.pos = (p + 1) % self.rows
+        self.pos, self.filled, self._sampleable = (p + 1) % self.rows, min(self.filled + 1, self.rows), None
+
+    def sampleable(self) -> np.ndarray:
+        """Flat indices (row * num_envs + env) of the transitions of finished, not overwritten episodes."""
+        if self._sampleable is None:
+            self._sampleable = np.flatnonzero(self.ep_length[: self.filled])
+        return self._sampleable
 
     def num_sampleable(self) -> int:
-        """Transitions of finished, not overwritten episodes."""
-        return int(np.count_nonzero(self.ep_length))
+        return len(self.sampleable())
 
     def sample(self, batch_size: int) -> dict[str, np.ndarray]:
         """A batch of transitions from finished episodes, a share ``her_ratio`` relabelled.
@@ -122,7 +128,7 @@ class HerReplayBuffer:
         next_achieved_goal, desired_goal`` (the goal after relabelling) and the boolean
         ``relabelled``.
         """
-        flat = np.flatnonzero(self.ep_length)
+        flat = self.sampleable()
         if len(flat) == 0:
             raise ValueError("no finished episode stored yet")
         rows, envs = np.divmod(self.rng.choice(flat, batch_size), self.num_envs)

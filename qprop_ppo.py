@@ -1,0 +1,584 @@
+"""Q-Prop (paper eq. 6-9) with a PPO-KL on-policy part (eq. 5) and a DDPG-style critic.
+
+Docs: README.md, section "Q-Prop". Papers: Gu et al. 2017, "Q-Prop: Sample-Efficient Policy
+Gradient with an Off-Policy Critic"; Tucker et al. 2018, "The Mirage of Action-Dependent
+Baselines" (the normalisation bias); Schulman et al. 2017 (PPO-KL).
+
+Q-Prop subtracts from the Monte Carlo advantage A_hat a control variate built from an off-policy
+critic Q_w, and adds back its expectation analytically, so the gradient stays unbiased:
+
+    A_bar(s, a) = grad_a Q_w(s, a)|_{a = mu(s)} . (a - mu(s))                                   (eq. 9)
+    grad J = E[grad log pi(a|s) (A_hat - eta A_bar)] + E[eta grad_a Q_w(s, a)|_{mu(s)} grad mu(s)]  (eq. 8)
+
+A_bar has mean zero under pi (it is linear in a - mu), and the second term is the deterministic
+policy gradient of eq. 7, which is the gradient of eta * Q_w(s, mu_theta(s)). Inside PPO-KL one
+minibatch loss is
+
+    L = -E[r_t(theta) (A_hat_t - eta_t A_bar_t)] - E[eta_t Q_w(s_t, mu_theta(s_t))] + beta * KL[pi_old || pi_theta]
+
+eta (``--eta-mode``): ``conservative`` (the paper's main method) eta_t = 1 where A_hat_t A_bar_t > 0,
+else 0; ``aggressive`` eta_t = sign(A_hat_t A_bar_t); ``ones`` eta_t = 1; ``none`` eta_t = 0, which
+is exactly PPO-KL (``ppo_kl.py``).
+
+Normalisation (``--normalization``): PPO normalises the learning signal A_hat - eta A_bar by its
+std sigma. The original Q-Prop code did that and left the analytic term alone (``paper``), which
+multiplies the analytic term's weight by sigma relative to the likelihood-ratio term: the
+gradient is then biased (Tucker et al. 2018 showed that this bias, not the control variate, was
+what beat TRPO). ``unbiased`` divides the analytic term by the same sigma, so that the update is
+a positive multiple of the unbiased estimator of eq. 8.
+
+Critic (eq. 6-7): Q_w learns off-policy from a replay buffer of every transition, target
+r + gamma (1 - terminated) Q_w'(s', mu_theta(s')) with the current policy's mean (no target policy
+network), soft target update after every critic step (eq. 6). Rewards are stored raw and scaled
+at sample time by the same running std that scales GAE's rewards, so critic and GAE share one
+scale. Order (the paper's Algorithm 1): the critic trains on the new batch first; A_bar, eta and
+the analytic term then use the trained critic.
+
+Environment handling is ``ppo_kl.py``'s: SAME_STEP autoreset, true final observations,
+truncation bootstrapped; goal tasks flattened into one input (no hindsight relabelling here).
+"""
+
+import contextlib
+import copy
+import io
+import os
+import random
+import re
+import sys
+import time
+from dataclasses import dataclass
+from typing import Literal
+
+import gymnasium as gym
+import gymnasium_robotics
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.optim as optim
+import tyro
+from torch.distributions import Normal, kl_divergence
+from torch.utils.tensorboard import SummaryWriter
+
+from common.gae import compute_gae
+from common.her import HerReplayBuffer
+from common.normalizer import RunningMeanStd
+
+gym.register_envs(gymnasium_robotics)
+torch.distributions.Distribution.set_default_validate_args(False)  # argument checks cost ~10% of a run
+
+
+@dataclass
+class Args:
+    exp_name: str = os.path.basename(__file__)[: -len(".py")]
+    """the name of this experiment (part of the run folder's name)"""
+    seed: int = 1
+    """seed of python, numpy, torch and the environments"""
+    torch_deterministic: bool = True
+    """if toggled, `torch.backends.cudnn.deterministic=True`"""
+    capture_video: bool = False
+    """record the evaluation episodes as videos into the run folder (needs moviepy)"""
+    save_model: bool = False
+    """save the final weights and observation-normaliser state into the run folder"""
+    log_dir: str = "runs"
+    """parent folder of the run folders"""
+    eval_freq: int = 100_000
+    """evaluate the deterministic (mean) policy every this many environment steps (0: only at the end)"""
+    eval_episodes: int = 10
+    """episodes per evaluation"""
+    torch_threads: int = 1
+    """torch intra-op threads; one is fastest for these small networks (measured)"""
+
+    # Algorithm specific arguments
+    env_id: str = "Hopper-v5"
+    """the id of the gymnasium environment"""
+    total_timesteps: int = 1_000_000
+    """environment steps to train for, counted over all parallel envs"""
+    num_envs: int = 4
+    """the number of parallel environments"""
+    num_steps: int = 512
+    """steps per environment per rollout (batch = num_envs * num_steps)"""
+    learning_rate: float = 3e-4
+    """the learning rate of Adam"""
+    anneal_lr: bool = True
+    """anneal the learning rate linearly to zero"""
+    gamma: float = 0.99
+    """the discount factor gamma"""
+    gae_lambda: float = 0.95
+    """lam of GAE (eq. 4)"""
+    num_minibatches: int = 32
+    """the number of minibatches per epoch"""
+    update_epochs: int = 10
+    """passes over the batch per update"""
+    norm_adv: bool = True
+    """normalise the advantages of a batch to zero mean and unit std"""
+    kl_target: float = 0.01
+    """d_targ: the KL divergence per update the beta rule aims for"""
+    beta_init: float = 1.0
+    """initial KL penalty coefficient beta (the PPO paper: insensitive)"""
+    kl_early_stop: float | None = None
+    """stop the epochs of an update once the mean KL exceeds this many times kl_target (None: never)"""
+    init_log_std: float = 0.0
+    """initial log std of the Gaussian policy"""
+    vf_coef: float = 0.5
+    """coefficient of the value loss"""
+    max_grad_norm: float = 0.5
+    """the maximum norm for gradient clipping"""
+    norm_obs: bool = True
+    """normalise observations by running mean and std (saved with the model)"""
+    norm_reward: bool = True
+    """divide rewards by the running std of the discounted return (GAE and critic alike)"""
+
+    # Q-Prop arguments
+    eta_mode: Literal["conservative", "aggressive", "ones", "none"] = "conservative"
+    """control-variate weight eta: sign test per sample (conservative/aggressive), 1, or none (= PPO-KL)"""
+    normalization: Literal["paper", "unbiased"] = "unbiased"
+    """normalise the learning signal only (paper, biased) or rescale the analytic term with it (unbiased)"""
+    buffer_size: int = 1_000_000
+    """replay buffer capacity in transitions"""
+    critic_learning_rate: float = 1e-3
+    """the learning rate of the critic Q_w"""
+    critic_batch_size: int = 256
+    """transitions per critic step"""
+    critic_steps: int = 256
+    """critic steps per iteration"""
+    critic_hidden: int = 100
+    """width of the critic's two hidden layers"""
+    tau: float = 0.005
+    """soft target update rate of eq. 6 (after every critic step)"""
+    learning_starts: int = 1000
+    """environment steps of warm-up before the first critic step; the control variate starts with it"""
+
+    # to be filled in runtime
+    batch_size: int = 0
+    """the batch size (computed in runtime)"""
+    minibatch_size: int = 0
+    """the mini-batch size (computed in runtime)"""
+    num_iterations: int = 0
+    """the number of iterations (computed in runtime)"""
+
+
+def fail(message: str) -> None:
+    """Bad input: one clear line, no traceback, non-zero exit."""
+    print(f"error: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+def parse_args() -> Args:
+    """``tyro.cli``, with a parse error reported as one line (tyro draws a box)."""
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            return tyro.cli(Args)
+    except SystemExit as e:
+        if e.code:
+            fail(" ".join(re.sub(r"[│╭╮╰╯─]", " ", captured.getvalue()).split()))
+        raise
+
+
+def check_args(args: Args) -> None:
+    if args.env_id not in gym.registry:
+        fail(f"unknown --env-id {args.env_id!r}; use a registered gymnasium id such as Hopper-v5 or FetchReach-v4")
+    for name in ("total_timesteps", "num_envs", "num_steps", "num_minibatches", "update_epochs", "eval_episodes"):
+        if getattr(args, name) <= 0:
+            fail(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
+    if args.total_timesteps < args.batch_size:
+        fail(f"--total-timesteps {args.total_timesteps} is less than one batch (num_envs * num_steps = {args.batch_size})")
+    if args.batch_size % args.num_minibatches:
+        fail(f"batch {args.batch_size} (num_envs * num_steps) does not split into {args.num_minibatches} minibatches; change --num-minibatches")
+    if not 0 < args.gamma <= 1 or not 0 <= args.gae_lambda <= 1:
+        fail("--gamma must be in (0, 1] and --gae-lambda in [0, 1]")
+    if args.kl_target <= 0 or args.beta_init < 0:
+        fail("--kl-target must be positive and --beta-init non-negative")
+    if not 0.0 < args.tau <= 1.0:
+        fail(f"--tau must be in (0, 1], got {args.tau}")
+    if args.critic_steps < 0 or args.learning_starts < 0 or args.critic_batch_size <= 0 or args.buffer_size <= 0:
+        fail("--critic-steps and --learning-starts must be non-negative, --critic-batch-size and --buffer-size positive")
+
+
+def make_env(env_id: str, video_dir: str | None = None):
+    def thunk():
+        env = gym.make(env_id, render_mode="rgb_array" if video_dir else None)
+        if video_dir:
+            env = gym.wrappers.RecordVideo(env, video_dir, episode_trigger=lambda e: True, disable_logger=True)
+        if isinstance(env.observation_space, gym.spaces.Dict):  # goal task: one flat policy input
+            env = gym.wrappers.FlattenObservation(env)  # [achieved_goal, desired_goal, observation]
+        return gym.wrappers.RecordEpisodeStatistics(env)
+
+    return thunk
+
+
+def layer_init(layer: nn.Linear, std: float = np.sqrt(2), bias_const: float = 0.0) -> nn.Linear:
+    torch.nn.init.orthogonal_(layer.weight, std)
+    torch.nn.init.constant_(layer.bias, bias_const)
+    return layer
+
+
+class Agent(nn.Module):
+    """Gaussian policy pi_theta(a|s) = N(mu_theta(s), diag(exp(log_std))^2) and baseline V_phi(s)."""
+
+    def __init__(self, obs_dim: int, act_dim: int, hidden: int = 64, init_log_std: float = 0.0):
+        super().__init__()
+        self.critic = nn.Sequential(
+            layer_init(nn.Linear(obs_dim, hidden)), nn.Tanh(),
+            layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
+            layer_init(nn.Linear(hidden, 1), std=1.0),
+        )  # fmt: skip
+        self.actor_mean = nn.Sequential(
+            layer_init(nn.Linear(obs_dim, hidden)), nn.Tanh(),
+            layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
+            layer_init(nn.Linear(hidden, act_dim), std=0.01),
+        )  # fmt: skip
+        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))  # state-independent log std
+
+    def get_value(self, x: torch.Tensor) -> torch.Tensor:
+        return self.critic(x).squeeze(-1)
+
+    def dist(self, x: torch.Tensor) -> Normal:
+        mean = self.actor_mean(x)
+        return Normal(mean, self.actor_logstd.expand_as(mean).exp())
+
+
+class QNetwork(nn.Module):
+    """Critic Q_w(s, a): the action joins after the first layer, as in the Q-Prop code."""
+
+    def __init__(self, obs_dim: int, act_dim: int, hidden: int = 100):
+        super().__init__()
+        self.fc1 = nn.Linear(obs_dim, hidden)
+        self.fc2 = nn.Linear(hidden + act_dim, hidden)
+        self.out = nn.Linear(hidden, 1)
+
+    def forward(self, x: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        h = torch.relu(self.fc1(x))
+        return self.out(torch.relu(self.fc2(torch.cat([h, a], -1)))).squeeze(-1)
+
+
+# ALGO LOGIC: the critic step (eq. 6-7)
+def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent, d: dict, gamma: float, tau: float) -> tuple[float, float]:
+    """One step of TD learning on a replay batch ``d``, then the soft target update of eq. 6."""
+    with torch.no_grad():
+        next_q = qf_target(d["next_obs"], agent.actor_mean(d["next_obs"]))  # Q_w'(s', mu_theta(s'))
+        target = d["rewards"] + gamma * (1.0 - d["terminations"]) * next_q
+    q = qf(d["obs"], d["actions"])
+    loss = 0.5 * ((q - target) ** 2).mean()
+    q_optimizer.zero_grad()
+    loss.backward()
+    q_optimizer.step()
+    with torch.no_grad():
+        for p, p_target in zip(qf.parameters(), qf_target.parameters()):
+            p_target.lerp_(p, tau)  # theta' <- tau theta + (1 - tau) theta'   (eq. 6)
+    return loss.item(), q.mean().item()
+
+
+# ALGO LOGIC: the control variate (eq. 9) and its weight eta
+def control_variate(qf: QNetwork, agent: Agent, obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+    """A_bar(s, a) = grad_a Q_w(s, a)|_{a = mu(s)} . (a - mu(s))   (eq. 9), no gradient to theta."""
+    with torch.no_grad():
+        mu = agent.actor_mean(obs)
+    mu.requires_grad_(True)
+    (grad_q,) = torch.autograd.grad(qf(obs, mu).sum(), mu)
+    return (grad_q * (actions - mu)).sum(-1).detach()
+
+
+def compute_eta(advantages: torch.Tensor, cv: torch.Tensor, mode: str) -> torch.Tensor:
+    """Per-sample eta_t from the sign of A_hat_t * A_bar_t, a sample estimate of Cov(A_hat, A_bar)."""
+    if mode == "conservative":
+        return (advantages * cv > 0).float()  # use the control variate only where it correlates
+    if mode == "aggressive":
+        return torch.sign(advantages * cv)  # flip it where it anti-correlates
+    return torch.full_like(advantages, 1.0 if mode == "ones" else 0.0)
+
+
+def qprop_surrogate(agent: Agent, qf: QNetwork, pi: Normal, obs, actions, logprobs_old, signal, eta, analytic_scale: float = 1.0) -> torch.Tensor:
+    """The Q-Prop objective as a loss (eq. 8): -E[r_t (A_hat - eta A_bar)] - analytic_scale E[eta Q_w(s, mu_theta(s))].
+
+    ``signal`` is the (possibly normalised) A_hat - eta A_bar. At theta = theta_old the gradient of
+    the first term is -E[grad log pi * signal], the second the deterministic policy gradient (eq. 7).
+    """
+    ratio = (pi.log_prob(actions).sum(-1) - logprobs_old).exp()  # r_t(theta), pi = agent.dist(obs)
+    loss = -(ratio * signal).mean()
+    if torch.any(eta != 0):
+        loss = loss - analytic_scale * (eta * qf(obs, agent.actor_mean(obs))).mean()  # analytic term of eq. 8
+    return loss
+
+
+# ALGO LOGIC: the Q-Prop update: PPO-KL (eq. 5) with the control variate (eq. 8)
+def qprop_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args, qf: QNetwork | None = None) -> tuple[float, dict]:
+    """``update_epochs`` passes of minibatch Adam on the Q-Prop loss with the KL penalty, then the beta rule.
+
+    ``b`` is the batch of ``ppo_kl.ppo_kl_update``, with ``cv`` (A_bar) and ``eta`` when a critic is
+    in use. Without a critic, or with eta = 0 everywhere, this is exactly ``ppo_kl.ppo_kl_update``.
+    """
+    batch_size = b["obs"].shape[0]
+    minibatch_size = batch_size // args.num_minibatches
+    use_cv = qf is not None and args.eta_mode != "none"
+    eta = b["eta"] if use_cv else torch.zeros_like(b["advantages"])
+    signal = b["advantages"] - eta * b["cv"] if use_cv else b["advantages"]  # A_hat - eta A_bar, on the raw scale
+    analytic_scale, signal_std = 1.0, signal.std()
+    if args.norm_adv:
+        signal = (signal - signal.mean()) / (signal_std + 1e-8)
+        if args.normalization == "unbiased":
+            analytic_scale = 1.0 / (signal_std.item() + 1e-8)  # same 1/sigma on both terms of eq. 8
+    pi_old = Normal(b["mean"], b["std"])
+    epochs_run = 0
+    for epoch in range(args.update_epochs):
+        perm = torch.randperm(batch_size)
+        for start in range(0, batch_size, minibatch_size):
+            mb = perm[start : start + minibatch_size]
+            pi = agent.dist(b["obs"][mb])
+            surrogate = qprop_surrogate(agent, qf, pi, b["obs"][mb], b["actions"][mb], b["logprobs"][mb], signal[mb], eta[mb], analytic_scale)
+            kl = kl_divergence(Normal(b["mean"][mb], b["std"][mb]), pi).sum(-1).mean()  # analytic Gaussian KL
+            pg_loss = surrogate + beta * kl  # eq. 8 inside eq. 5, negated
+            v_loss = 0.5 * ((agent.get_value(b["obs"][mb]) - b["returns"][mb]) ** 2).mean()
+            loss = pg_loss + args.vf_coef * v_loss
+            optimizer.zero_grad()
+            loss.backward()
+            nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+            optimizer.step()
+        epochs_run = epoch + 1
+        if args.kl_early_stop is not None:
+            with torch.no_grad():
+                d = kl_divergence(pi_old, agent.dist(b["obs"])).sum(-1).mean().item()
+            if d > args.kl_early_stop * args.kl_target:
+                break
+    with torch.no_grad():
+        pi = agent.dist(b["obs"])
+        d = kl_divergence(pi_old, pi).sum(-1).mean().item()  # d: mean KL[pi_old || pi_new] of the update
+        entropy = pi.entropy().sum(-1).mean().item()
+    stats = {"policy_loss": pg_loss.item(), "value_loss": v_loss.item(), "approx_kl": d, "beta": beta,
+             "epochs": epochs_run, "entropy": entropy, "signal_std": signal_std.item()}  # fmt: skip
+    if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
+        beta /= 2
+    elif d > args.kl_target * 1.5:
+        beta *= 2
+    return beta, stats
+
+
+# ALGO LOGIC: rollout with the current policy
+def collect_rollout(envs, agent: Agent, obs_rms: RunningMeanStd, raw_obs: np.ndarray, num_steps: int, update_obs_rms: bool = True, rb: HerReplayBuffer | None = None):
+    """Step the vector env ``num_steps`` times with actions sampled from pi_theta.
+
+    As ``ppo_kl.collect_rollout``; besides, every transition goes raw into the replay buffer ``rb``
+    with its true next observation (the final one where the episode ended).
+
+    Returns ``(rollout, raw_obs, episodes)``: ``rollout`` holds time-major ``(T, N, ...)`` tensors
+    ``obs`` (normalised, as the policy saw them), ``actions``, ``rewards`` (raw), ``terminations``,
+    ``episode_ends`` and ``final_obs`` (normalised true last observation where an episode ended at
+    step t, zeros elsewhere); ``raw_obs`` is where the envs stopped; ``episodes`` lists the finished
+    training episodes as ``(t, env, return, length, success or None)``.
+    """
+    T, N = num_steps, envs.num_envs
+    obs_dim, act_dim = envs.single_observation_space.shape[0], envs.single_action_space.shape[0]
+    low, high = envs.single_action_space.low, envs.single_action_space.high
+    ro = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
+          "actions": torch.zeros((T, N, act_dim)), "rewards": torch.zeros((T, N)),
+          "terminations": torch.zeros((T, N)), "episode_ends": torch.zeros((T, N))}  # fmt: skip
+    episodes = []
+    for t in range(T):
+        if update_obs_rms:
+            obs_rms.update(raw_obs)
+        ro["obs"][t] = torch.as_tensor(obs_rms.normalize(raw_obs))
+        with torch.no_grad():
+            ro["actions"][t] = agent.dist(ro["obs"][t]).sample()
+        prev_obs = raw_obs
+        raw_obs, reward, terminated, truncated, infos = envs.step(np.clip(ro["actions"][t].numpy(), low, high))
+        ended = terminated | truncated
+        ro["rewards"][t] = torch.as_tensor(reward)
+        ro["terminations"][t] = torch.as_tensor(terminated)
+        ro["episode_ends"][t] = torch.as_tensor(ended)
+        true_next = raw_obs.copy()
+        for i in np.flatnonzero(ended):  # SAME_STEP autoreset: raw_obs[i] is already the next episode's first
+            true_next[i] = infos["final_obs"][i]
+            ro["final_obs"][t, i] = torch.as_tensor(obs_rms.normalize(infos["final_obs"][i]))
+            info = infos["final_info"]
+            success = float(info["is_success"][i]) if "is_success" in info else None
+            episodes.append((t, i, float(info["episode"]["r"][i]), int(info["episode"]["l"][i]), success))
+        if rb is not None:
+            rb.add(prev_obs, ro["actions"][t].numpy(), reward, true_next, terminated, truncated)
+    return ro, raw_obs, episodes
+
+
+def scale_rewards(rewards: torch.Tensor, episode_ends: torch.Tensor, ret_rms: RunningMeanStd, running_return: np.ndarray, gamma: float) -> torch.Tensor:
+    """Divide rewards by the running std of the discounted return (CleanRL's NormalizeReward, per batch).
+
+    ``running_return`` (one per env) carries the discounted return across batches; it is reset
+    where an episode ends. The statistics are updated with this batch before scaling.
+    """
+    returns = np.zeros(rewards.shape)
+    for t in range(rewards.shape[0]):
+        running_return[:] = running_return * gamma + rewards[t].numpy()
+        returns[t] = running_return
+        running_return[episode_ends[t].numpy() > 0] = 0.0
+    ret_rms.update(returns.reshape(-1))
+    return rewards / float(np.sqrt(ret_rms.var + 1e-8))
+
+
+# ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
+def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae_lambda: float) -> dict:
+    """GAE advantages and the pi_old statistics of a rollout, flattened into one batch.
+
+    V(s_{t+1}) is the next row's value within an episode, V(final_obs) where the episode ended at
+    step t (masked by the termination flag inside ``compute_gae``), V(last_obs) for the last row.
+    """
+    with torch.no_grad():
+        values = agent.get_value(ro["obs"])
+        next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
+        next_values = torch.where(ro["episode_ends"].bool(), agent.get_value(ro["final_obs"]), next_values)
+        advantages = compute_gae(ro["rewards"], values, next_values, ro["terminations"], ro["episode_ends"], gamma, gae_lambda)
+        pi_old = agent.dist(ro["obs"])
+        act_dim = ro["actions"].shape[-1]
+        return {
+            "obs": ro["obs"].flatten(0, 1),
+            "actions": ro["actions"].flatten(0, 1),
+            "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),
+            "mean": pi_old.mean.reshape(-1, act_dim),
+            "std": pi_old.stddev.reshape(-1, act_dim),
+            "advantages": advantages.flatten(),
+            "returns": (advantages + values).flatten(),
+            "next_values": next_values.flatten(),
+        }
+
+
+def sample_replay(rb: HerReplayBuffer, obs_rms: RunningMeanStd, reward_scale: float, batch_size: int) -> dict:
+    """A replay batch, inputs normalised and rewards scaled with the current statistics."""
+    s = rb.sample(batch_size)
+    return {
+        "obs": torch.as_tensor(obs_rms.normalize(s["obs"])), "next_obs": torch.as_tensor(obs_rms.normalize(s["next_obs"])),
+        "actions": torch.as_tensor(s["action"]), "rewards": torch.as_tensor(s["reward"] * reward_scale),
+        "terminations": torch.as_tensor(s["terminated"]),
+    }  # fmt: skip
+
+
+def evaluate(agent: Agent, obs_rms: RunningMeanStd, env_id: str, episodes: int, seed: int, video_dir: str | None = None):
+    """Run the deterministic policy a = mu_theta(s) with frozen normaliser statistics.
+
+    Returns the episodic returns and, on goal tasks, the successes (``is_success`` at the last step).
+    """
+    env = make_env(env_id, video_dir)()
+    returns, successes = [], []
+    for episode in range(episodes):
+        obs, _ = env.reset(seed=seed + episode)
+        done = False
+        while not done:
+            with torch.no_grad():
+                action = agent.actor_mean(torch.as_tensor(obs_rms.normalize(obs)[None])).numpy()[0]
+            obs, _, terminated, truncated, info = env.step(np.clip(action, env.action_space.low, env.action_space.high))
+            done = terminated or truncated
+        returns.append(info["episode"]["r"])
+        if "is_success" in info:
+            successes.append(info["is_success"])
+    env.close()
+    return np.array(returns, np.float64), np.array(successes, np.float64)
+
+
+if __name__ == "__main__":
+    args = parse_args()
+    args.batch_size = args.num_envs * args.num_steps
+    args.minibatch_size = args.batch_size // max(args.num_minibatches, 1)
+    args.num_iterations = args.total_timesteps // max(args.batch_size, 1)
+    check_args(args)
+    run_name = f"{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}"
+    run_dir = os.path.join(args.log_dir, run_name)
+    writer = SummaryWriter(run_dir)
+    writer.add_text(
+        "hyperparameters",
+        "|param|value|\n|-|-|\n%s" % ("\n".join([f"|{key}|{value}|" for key, value in vars(args).items()])),
+    )
+
+    # TRY NOT TO MODIFY: seeding
+    random.seed(args.seed)
+    np.random.seed(args.seed)
+    torch.manual_seed(args.seed)
+    torch.backends.cudnn.deterministic = args.torch_deterministic
+    torch.set_num_threads(args.torch_threads)
+
+    # env setup
+    envs = gym.vector.SyncVectorEnv(
+        [make_env(args.env_id) for _ in range(args.num_envs)], autoreset_mode=gym.vector.AutoresetMode.SAME_STEP
+    )
+    assert envs.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
+    assert isinstance(envs.single_action_space, gym.spaces.Box), "only continuous action spaces are supported"
+    obs_dim, act_dim = envs.single_observation_space.shape[0], envs.single_action_space.shape[0]
+    envs.single_action_space.seed(args.seed)
+
+    agent = Agent(obs_dim, act_dim, init_log_std=args.init_log_std)
+    optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
+    obs_rms = RunningMeanStd((obs_dim,))
+    qf = QNetwork(obs_dim, act_dim, args.critic_hidden)
+    qf_target = copy.deepcopy(qf)
+    q_optimizer = optim.Adam(qf.parameters(), lr=args.critic_learning_rate, fused=True)
+    rb = HerReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, n_sampled_goal=0, seed=args.seed)  # plain episode replay
+    ret_rms, running_return = RunningMeanStd(()), np.zeros(args.num_envs)  # for reward scaling
+    beta = args.beta_init
+
+    global_step, train_time, last_eval, exit_code = 0, 0.0, 0, 0
+    recent_success = []  # is_success of the last 100 training episodes (goal tasks)
+    raw_obs, _ = envs.reset(seed=args.seed)
+    try:
+        for iteration in range(1, args.num_iterations + 1):
+            t0 = time.time()
+            if args.anneal_lr:
+                optimizer.param_groups[0]["lr"] = (1.0 - (iteration - 1.0) / args.num_iterations) * args.learning_rate
+
+            ro, raw_obs, episodes = collect_rollout(envs, agent, obs_rms, raw_obs, args.num_steps, args.norm_obs, rb)
+            for t, _, episodic_return, length, success in episodes:
+                step = global_step + (t + 1) * args.num_envs
+                writer.add_scalar("charts/episodic_return", episodic_return, step)
+                writer.add_scalar("charts/episodic_length", length, step)
+                if success is not None:
+                    recent_success = (recent_success + [success])[-100:]
+                    writer.add_scalar("charts/success_rate", np.mean(recent_success), step)
+            global_step += args.batch_size
+            if args.norm_reward:
+                ro["rewards"] = scale_rewards(ro["rewards"], ro["episode_ends"], ret_rms, running_return, args.gamma)
+
+            reward_scale = float(1.0 / np.sqrt(ret_rms.var + 1e-8)) if args.norm_reward else 1.0
+
+            # ALGO LOGIC: critic first (Algorithm 1 of Q-Prop), then A_bar and eta with the trained critic
+            learning = global_step >= args.learning_starts and args.eta_mode != "none"
+            if learning:
+                for _ in range(args.critic_steps):
+                    d = sample_replay(rb, obs_rms, reward_scale, args.critic_batch_size)
+                    critic_loss, q_values = critic_step(qf, qf_target, q_optimizer, agent, d, args.gamma, args.tau)
+                writer.add_scalar("losses/critic_loss", critic_loss, global_step)
+                writer.add_scalar("losses/q_values", q_values, global_step)
+
+            b = make_batch(agent, ro, torch.as_tensor(obs_rms.normalize(raw_obs)), args.gamma, args.gae_lambda)
+            if learning:
+                b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
+                b["eta"] = compute_eta(b["advantages"], b["cv"], args.eta_mode)
+                writer.add_scalar("qprop/eta", b["eta"].mean().item(), global_step)
+                writer.add_scalar("qprop/cov", (b["advantages"] * b["cv"]).mean().item(), global_step)
+            beta, stats = qprop_update(agent, optimizer, b, beta, args, qf if learning else None)
+            if not all(np.isfinite(v) for v in stats.values()):
+                raise FloatingPointError(f"a loss became NaN or infinite at global step {global_step}: {stats}")
+            train_time += time.time() - t0
+
+            writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
+            writer.add_scalar("charts/policy_entropy", stats["entropy"], global_step)
+            writer.add_scalar("charts/SPS", int(global_step / train_time), global_step)
+            for key in ("policy_loss", "value_loss", "approx_kl", "beta", "epochs"):
+                writer.add_scalar(f"losses/{key}", stats[key], global_step)
+            writer.add_scalar("qprop/signal_std", stats["signal_std"], global_step)
+
+            if iteration == args.num_iterations or (args.eval_freq > 0 and global_step - last_eval >= args.eval_freq):
+                last_eval = global_step
+                video_dir = os.path.join(run_dir, "videos") if args.capture_video else None
+                eval_returns, eval_success = evaluate(agent, obs_rms, args.env_id, args.eval_episodes, args.seed + 10_000, video_dir)
+                writer.add_scalar("eval/episodic_return", eval_returns.mean(), global_step)
+                if len(eval_success):
+                    writer.add_scalar("eval/success_rate", eval_success.mean(), global_step)
+                print(f"step={global_step} eval_return={eval_returns.mean():.1f} SPS={int(global_step / train_time)}", flush=True)
+    except KeyboardInterrupt:
+        print(f"interrupted at global step {global_step}; logs are kept in {run_dir}", file=sys.stderr)
+        exit_code = 130
+    except FloatingPointError as e:
+        print(f"error: {e}", file=sys.stderr)
+        exit_code = 1
+    finally:
+        if args.save_model:
+            model_path = os.path.join(run_dir, "model.pt")
+            torch.save({"agent": agent.state_dict(), "qf": qf.state_dict(), "obs_rms": obs_rms.state_dict(), "args": vars(args)}, model_path)
+            print(f"model saved to {model_path}")
+        envs.close()
+        writer.close()
+    sys.exit(exit_code)

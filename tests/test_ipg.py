@@ -1,0 +1,87 @@
+"""ipg_her.py: the nu = 0 identity with PPO-KL, smoke runs, bad input, and the FetchReach learning check."""
+
+import numpy as np
+import pytest
+import torch
+
+import ipg_her
+import ppo_kl
+from conftest import assert_clean_error, run_dirs, run_script, scalars
+from test_qprop import random_batch
+
+
+def test_nu_zero_without_cv_is_the_ppo_kl_update():
+    torch.manual_seed(0)
+    agent_ppo, agent_ipg = ppo_kl.Agent(5, 2), ppo_kl.Agent(5, 2)
+    agent_ipg.load_state_dict(agent_ppo.state_dict())
+    b = random_batch(200, 5, 2, agent_ppo)
+    flags = dict(num_minibatches=4, update_epochs=3, learning_rate=3e-4, max_grad_norm=0.5, vf_coef=0.5, kl_target=0.01)
+    qf = ipg_her.QNetwork(5, 2, 32)
+    off_states = lambda mb: torch.randn(16, 5)  # noqa: E731  never called with nu = 0
+    betas = []
+    for agent, update in [
+        (agent_ppo, lambda opt: ppo_kl.ppo_kl_update(agent_ppo, opt, b, 1.0, ppo_kl.Args(**flags))),
+        (agent_ipg, lambda opt: ipg_her.ipg_update(agent_ipg, opt, b, 1.0, ipg_her.Args(nu=0.0, use_cv=False, **flags), qf, off_states)),
+    ]:
+        optimizer = torch.optim.Adam(agent.parameters(), lr=3e-4, eps=1e-5, fused=True)
+        torch.manual_seed(1)
+        betas.append(update(optimizer)[0])
+    assert betas[0] == betas[1]
+    for key, value in agent_ppo.state_dict().items():
+        torch.testing.assert_close(agent_ipg.state_dict()[key], value, rtol=0, atol=1e-7)
+
+
+def test_off_policy_term_moves_the_mean_up_the_critic():
+    """nu = 1: the update is deterministic policy gradient ascent on Q_w(s, mu(s)) (eq. 7, 10)."""
+    torch.manual_seed(0)
+    agent = ipg_her.Agent(3, 2, 32)
+    b = random_batch(64, 3, 2, agent)
+    qf = ipg_her.QNetwork(3, 2, 32)
+    states = torch.randn(256, 3)
+    with torch.no_grad():
+        before = qf(states, agent.actor_mean(states)).mean()
+    args = ipg_her.Args(nu=1.0, num_minibatches=2, update_epochs=5, beta_init=0.0)
+    optimizer = torch.optim.Adam(agent.parameters(), lr=1e-3)
+    ipg_her.ipg_update(agent, optimizer, b, 0.0, args, qf, lambda mb: states)
+    with torch.no_grad():
+        after = qf(states, agent.actor_mean(states)).mean()
+    assert after > before + 1e-3
+
+
+@pytest.mark.parametrize(
+    "env_id, flags",
+    [
+        ("FetchReach-v4", ["--her"]),
+        ("FetchReach-v4", ["--no-her", "--use-cv", "--off-policy-states", "batch"]),
+        ("Hopper-v5", ["--num-steps", "100"]),
+    ],
+)
+def test_smoke(tmp_path, env_id, flags):
+    result = run_script("ipg_her.py", tmp_path, "--env-id", env_id, "--total-timesteps", "400", "--num-envs", "2",
+                        "--critic-steps", "4", "--update-epochs", "2", "--eval-freq", "200", "--eval-episodes", "2",
+                        "--hidden", "32", "--save-model", *flags)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    (run_dir,) = run_dirs(tmp_path)
+    tags = scalars(run_dir)
+    expected = {"losses/critic_loss", "losses/q_values", "ipg/nu", "ipg/on_policy_term", "ipg/off_policy_term",
+                "losses/beta", "losses/approx_kl", "charts/policy_entropy", "charts/SPS", "eval/episodic_return",
+                "charts/episodic_return"}  # fmt: skip
+    if env_id.startswith("Fetch"):
+        expected |= {"charts/success_rate", "eval/success_rate"}
+    assert expected <= set(tags), expected - set(tags)
+    assert len(tags["losses/critic_loss"]) >= 2 and len(tags["eval/episodic_return"]) >= 2
+    ckpt = torch.load(run_dir / "model.pt", weights_only=False)
+    assert {"agent", "qf", "normalizer"} <= set(ckpt)
+
+
+@pytest.mark.parametrize(
+    "flags, needle",
+    [
+        (["--env-id", "Hopper-v5", "--her"], "--her"),
+        (["--nu", "1.5"], "--nu"),
+        (["--her-goal-selection-strategy", "foo"], "foo"),
+        (["--total-timesteps", "0"], "--total-timesteps"),
+    ],
+)
+def test_bad_input_fails_with_one_clear_line(tmp_path, flags, needle):
+    assert_clean_error(run_script("ipg_her.py", tmp_path, *flags, timeout=60), needle)
