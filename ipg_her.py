@@ -105,7 +105,7 @@ class Args:
     """lam of GAE (eq. 4)"""
     num_minibatches: int = 2
     """the number of on-policy minibatches per epoch"""
-    update_epochs: int = 20
+    update_epochs: int = 10
     """passes over the on-policy batch per update"""
     norm_adv: bool = True
     """normalise the learning signal of a batch to zero mean and unit std"""
@@ -117,7 +117,7 @@ class Args:
     """coefficient of the value loss"""
     max_grad_norm: float = 0.5
     """the maximum norm for gradient clipping of the policy and value networks"""
-    hidden: int = 256
+    hidden: int = 128
     """width of the two hidden layers of every network"""
     norm_reward: bool = False
     """divide rewards by the running std of the discounted return (off: the critic and GAE must share one scale)"""
@@ -137,7 +137,7 @@ class Args:
     """the learning rate of the critic Q_w"""
     critic_batch_size: int = 256
     """transitions per critic step"""
-    critic_steps: int = 40
+    critic_steps: int = 20
     """critic steps per iteration"""
     tau: float = 0.05
     """soft target update rate of eq. 6 (after every critic step)"""

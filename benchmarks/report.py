@@ -1,0 +1,211 @@
+"""Figures and a results table from the TensorBoard event files of a benchmark suite (nothing else).
+
+    python benchmarks/report.py --suite paper                      # read benchmarks/runs/paper
+    python benchmarks/report.py --suite paper --from-export        # redraw from the committed export
+
+Writes into ``--results-dir`` (default ``benchmarks/results/{suite}``): ``curves.json`` (a compact
+export of every run's curves, enough to redraw everything), ``results.md`` (the table and how
+it was measured) and PNG figures in the shape of the paper's Figures 3-5.
+"""
+
+import json
+import sys
+import warnings
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import tyro  # noqa: E402
+
+TAGS = ("charts/episodic_return", "charts/episodic_length", "charts/success_rate", "charts/policy_entropy",
+        "charts/SPS", "eval/episodic_return", "eval/success_rate")  # fmt: skip
+THRESHOLDS = {"Hopper-v5": ("charts/episodic_return", 2000.0), "FetchReach-v4": ("eval/success_rate", 0.9)}
+LABELS = {"ppo_kl": "PPO-KL", "qprop_ppo": "Q-Prop", "ipg": "IPG (no HER)", "ipg_her": "IPG+HER"}
+
+
+@dataclass
+class Args:
+    suite: str = "paper"
+    """the suite folder to read"""
+    runs_dir: str = "benchmarks/runs"
+    """parent of the suite folders written by run.py"""
+    results_dir: str = ""
+    """where to write (default benchmarks/results/{suite})"""
+    from_export: bool = False
+    """redraw from the results folder's curves.json instead of the event files"""
+    window: int = 100
+    """final performance: mean over this many last training episodes"""
+    seed: int = 0
+    """seed of the bootstrap confidence intervals"""
+
+
+def read_run(run_dir: Path) -> dict:
+    """Every tag of TAGS of one run, as {tag: [[step, value], ...]}, plus its wall time."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(run_dir), size_guidance={"scalars": 0})
+    acc.Reload()
+    out, times = {}, []
+    for tag in acc.Tags()["scalars"]:
+        if tag in TAGS:
+            events = acc.Scalars(tag)
+            out[tag] = [[e.step, round(e.value, 5)] for e in events]
+            times += [e.wall_time for e in events]
+    out["wall_time"] = max(times) - min(times) if times else 0.0
+    return out
+
+
+def collect(runs_dir: Path) -> dict:
+    """{group "name__env_id": {seed: run data}} from the folders run.py wrote."""
+    groups = defaultdict(dict)
+    for folder in sorted(runs_dir.iterdir()):
+        if not (folder / "exit_code").exists() or folder.joinpath("exit_code").read_text().strip() != "0":
+            continue
+        name, env_id, seed = folder.name.split("__")
+        event_dirs = [p for p in folder.iterdir() if p.is_dir()]
+        if event_dirs:
+            groups[f"{name}__{env_id}"][seed.removeprefix("seed")] = read_run(max(event_dirs))
+    return groups
+
+
+def iqm(x: np.ndarray) -> float:
+    """Interquartile mean: the mean of the middle 50% (robust to one bad seed)."""
+    x = np.sort(np.asarray(x, float))
+    lo, hi = int(np.floor(0.25 * len(x))), int(np.ceil(0.75 * len(x)))
+    return float(x[lo:hi].mean()) if hi > lo else float(x.mean())
+
+
+def final_performance(run: dict, goal_task: bool, window: int) -> float:
+    """Mean of the last ``window`` training episodes' returns; on goal tasks their success rate
+    (charts/success_rate is already the share of the last 100 episodes)."""
+    if goal_task:
+        return run["charts/success_rate"][-1][1] if run.get("charts/success_rate") else float("nan")
+    returns = [v for _, v in run.get("charts/episodic_return", [])]
+    return float(np.mean(returns[-window:])) if returns else float("nan")
+
+
+def steps_to_threshold(run: dict, env_id: str, window: int) -> float:
+    tag, threshold = THRESHOLDS.get(env_id, ("charts/episodic_return", np.inf))
+    points = run.get(tag, [])
+    if tag == "charts/episodic_return":  # running mean of the last `window` episodes
+        values = np.array([v for _, v in points])
+        running = [values[max(0, i - window + 1) : i + 1].mean() for i in range(len(values))]
+        points = [[s, r] for (s, _), r in zip(points, running)]
+    return next((s for s, v in points if v >= threshold), float("nan"))
+
+
+def curve_on_grid(points: list, grid: np.ndarray, smooth: int) -> np.ndarray:
+    """A run's curve, smoothed by a moving average of ``smooth`` points, interpolated on ``grid``."""
+    steps, values = np.array(points, float).T
+    if smooth > 1 and len(values) >= smooth:
+        values = np.convolve(values, np.ones(smooth) / smooth, mode="valid")
+        steps = steps[smooth - 1 :]
+    out = np.interp(grid, steps, values)
+    out[(grid < steps[0]) | (grid > steps[-1])] = np.nan
+    return out
+
+
+def bootstrap_band(curves: np.ndarray, rng: np.random.Generator, n: int = 1000) -> tuple[np.ndarray, np.ndarray]:
+    """95% bootstrap confidence interval of the mean over seeds, pointwise."""
+    seeds = curves.shape[0]
+    means = np.stack([np.nanmean(curves[rng.integers(0, seeds, seeds)], 0) for _ in range(n)])
+    return np.nanpercentile(means, 2.5, 0), np.nanpercentile(means, 97.5, 0)
+
+
+def plot(ax, groups: dict, names: list, env_id: str, tag: str, rng, smooth: int = 1, per_episode: bool = False) -> None:
+    warnings.simplefilter("ignore", RuntimeWarning)  # grid points past a seed's last step are NaN on purpose
+    for name in names:
+        runs = groups.get(f"{name}__{env_id}", {})
+        runs = [r[tag] for r in runs.values() if r.get(tag)]
+        if not runs:
+            continue
+        end = min(p[-1][0] for p in runs)
+        grid = np.linspace(0, end, 200)
+        curves = np.stack([curve_on_grid(p, grid, smooth) for p in runs])
+        x = grid / 50 if per_episode else grid  # FetchReach: 50 steps per episode
+        ax.plot(x, np.nanmean(curves, 0), label=f"{LABELS.get(name, name)} ({len(runs)} seeds)")
+        lo, hi = bootstrap_band(curves, rng)
+        ax.fill_between(x, lo, hi, alpha=0.2)
+    ax.set_xlabel("episodes" if per_episode else "environment steps")
+    ax.set_ylabel(tag.split("/")[-1].replace("_", " ") + (" (eval)" if tag.startswith("eval") else ""))
+    ax.set_title(env_id)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+
+
+def table(groups: dict, window: int) -> str:
+    rows = ["| task | algorithm | seeds | final (mean ± std) | final IQM | final eval | steps to threshold (median) | SPS | wall time (s) |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+    for group in sorted(groups, key=lambda g: (g.split("__")[1], g)):
+        name, env_id = group.split("__")
+        runs = list(groups[group].values())
+        goal = any(r.get("charts/success_rate") for r in runs)
+        final = np.array([final_performance(r, goal, window) for r in runs])
+        eval_tag = "eval/success_rate" if goal else "eval/episodic_return"
+        final_eval = np.array([r[eval_tag][-1][1] for r in runs if r.get(eval_tag)])
+        reach = np.array([steps_to_threshold(r, env_id, window) for r in runs])
+        reached = reach[np.isfinite(reach)]
+        reach_text = f"{np.median(reached):,.0f} ({len(reached)}/{len(runs)} seeds)" if len(reached) else f"not reached (0/{len(runs)})"
+        sps = np.mean([r["charts/SPS"][-1][1] for r in runs if r.get("charts/SPS")])
+        wall = np.mean([r["wall_time"] for r in runs])
+        f = ".2f" if goal else ".0f"
+        rows.append(f"| {env_id} | {LABELS.get(name, name)} | {len(runs)} | {final.mean():{f}} ± {final.std():{f}} | {iqm(final):{f}} "
+                    f"| {final_eval.mean():{f}} | {reach_text} | {sps:.0f} | {wall:.0f} |")  # fmt: skip
+    return "\n".join(rows)
+
+
+def main(args: Args) -> int:
+    results = Path(args.results_dir or f"benchmarks/results/{args.suite}")
+    results.mkdir(parents=True, exist_ok=True)
+    if args.from_export:
+        groups = json.loads((results / "curves.json").read_text())
+    else:
+        runs_dir = Path(args.runs_dir) / args.suite
+        if not runs_dir.is_dir():
+            print(f"error: no runs in {runs_dir}; run benchmarks/run.py --suite {args.suite} first", file=sys.stderr)
+            return 2
+        groups = collect(runs_dir)
+        (results / "curves.json").write_text(json.dumps(groups, separators=(",", ":")))
+    rng = np.random.default_rng(args.seed)
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))  # Figure 3
+    plot(axes[0], groups, ["ppo_kl", "qprop_ppo"], "Hopper-v5", "charts/episodic_length", rng, smooth=20)
+    plot(axes[1], groups, ["ppo_kl", "qprop_ppo"], "Hopper-v5", "charts/episodic_return", rng, smooth=20)
+    fig.tight_layout()
+    fig.savefig(results / "fig3_hopper.png", dpi=100)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))  # Figure 4
+    plot(axes[0], groups, ["ppo_kl", "qprop_ppo", "ipg_her"], "FetchReach-v4", "charts/policy_entropy", rng)
+    plot(axes[1], groups, ["ppo_kl", "qprop_ppo", "ipg_her"], "FetchReach-v4", "charts/episodic_return", rng, smooth=10)
+    fig.tight_layout()
+    fig.savefig(results / "fig4_fetchreach.png", dpi=100)
+    fig, ax = plt.subplots(figsize=(6, 4))  # Figure 5
+    plot(ax, groups, ["ppo_kl", "ipg", "ipg_her"], "FetchReach-v4", "eval/success_rate", rng, per_episode=True)
+    fig.tight_layout()
+    fig.savefig(results / "fig5_fetchreach_success.png", dpi=100)
+    plt.close("all")
+
+    text = f"""{table(groups, args.window)}
+
+How this was measured: every row is the runs of `benchmarks/run.py --suite {args.suite}` that
+finished, read from their TensorBoard event files by `benchmarks/report.py`. *final*: the mean
+return of the last {args.window} training episodes (stochastic policy); on FetchReach the success
+rate of the last 100 training episodes. Mean ± std and interquartile mean (IQM) over seeds.
+*final eval*: the last evaluation of the deterministic policy (Hopper: 10 episodes; FetchReach:
+20). *steps to threshold*: first step where the running mean of the last {args.window} training
+returns reaches 2000 (Hopper), or where an evaluation reaches 0.9 success (FetchReach). *SPS*:
+environment steps per second of training, evaluation excluded; *wall time*: first to last logged
+event. Curves: mean over seeds with a 95% bootstrap confidence band, Hopper smoothed over 20
+logged episodes, FetchReach returns over 10.
+"""
+    (results / "results.md").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(tyro.cli(Args)))

@@ -1,0 +1,171 @@
+"""Run a grid of script x task x seed, each run its own process, locally or on a Ray cluster.
+
+    python benchmarks/run.py --suite paper            # Figures 3-5 of the paper, 5 seeds
+    python benchmarks/run.py --suite quick --dry-run  # print the commands only
+    python benchmarks/report.py --suite paper         # figures and table from the event files
+
+Every run gets a folder ``{out-dir}/{suite}/{name}__{env_id}__seed{seed}/`` holding the script's
+own run folder (TensorBoard events), ``stdout.log``, ``stderr.log`` and ``exit_code``. A run whose
+``exit_code`` says 0 is skipped by the next call (resume); a failed one is run again. The call
+exits non-zero if any run failed.
+"""
+
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import tyro
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass
+class Args:
+    suite: Literal["paper", "ablations", "quick"] = "paper"
+    """which grid to run"""
+    seeds: tuple[int, ...] = ()
+    """override the suite's seeds"""
+    only: str = ""
+    """run only the runs whose folder name contains this text"""
+    workers: int = os.cpu_count() or 1
+    """runs at once (each uses one core)"""
+    out_dir: str = "benchmarks/runs"
+    """parent of the suite folders"""
+    backend: Literal["local", "ray"] = "local"
+    """local processes, or one Ray task per run (needs `pip install ray`; a shared filesystem on a multi-node cluster)"""
+    ray_address: str | None = None
+    """address of an existing Ray cluster (None: start a local Ray instance)"""
+    dry_run: bool = False
+    """print the commands and exit"""
+
+
+@dataclass(frozen=True)
+class Run:
+    name: str  # the algorithm variant: ppo_kl, qprop_ppo, ipg_her, ipg_her_noher, ...
+    script: str
+    env_id: str
+    seed: int
+    flags: tuple[str, ...] = field(default=())
+
+    @property
+    def folder(self) -> str:
+        return f"{self.name}__{self.env_id}__seed{self.seed}"
+
+    def command(self, run_dir: Path) -> list[str]:
+        return [sys.executable, str(ROOT / self.script), "--env-id", self.env_id, "--seed", str(self.seed),
+                "--exp-name", self.name, "--log-dir", str(run_dir), *self.flags]  # fmt: skip
+
+
+HOPPER_STEPS, FETCH_STEPS = 1_000_000, 30_000
+
+
+def suite_runs(suite: str, seeds: tuple[int, ...] = ()) -> list[Run]:
+    """The named grids. ``paper``: Figure 3 (Hopper: PPO-KL vs Q-Prop), Figures 4-5 (FetchReach:
+    PPO-KL, Q-Prop, IPG without HER, IPG+HER); ``ablations``: Q-Prop's eta and normalisation,
+    IPG's nu, control variate and HER settings; ``quick``: the paper's shape on tiny budgets."""
+    fetch = lambda name, script, *flags: (name, script, "FetchReach-v4", flags)  # noqa: E731
+    hopper = lambda name, script, *flags: (name, script, "Hopper-v5", flags)  # noqa: E731
+    if suite == "paper":
+        seeds = seeds or (1, 2, 3, 4, 5)
+        grid = [
+            hopper("ppo_kl", "ppo_kl.py"), hopper("qprop_ppo", "qprop_ppo.py"),
+            fetch("ppo_kl", "ppo_kl.py", "--total-timesteps", str(FETCH_STEPS), "--eval-freq", "2500", "--eval-episodes", "20"),
+            fetch("qprop_ppo", "qprop_ppo.py", "--total-timesteps", str(FETCH_STEPS), "--eval-freq", "2500", "--eval-episodes", "20"),
+            fetch("ipg", "ipg_her.py", "--no-her"),
+            fetch("ipg_her", "ipg_her.py"),
+        ]  # fmt: skip
+    elif suite == "ablations":
+        seeds = seeds or (1, 2, 3)
+        grid = [hopper(f"qprop_{eta}_{norm}", "qprop_ppo.py", "--eta-mode", eta, "--normalization", norm)
+                for eta in ("conservative", "aggressive", "ones") for norm in ("paper", "unbiased")]  # fmt: skip
+        grid += [fetch(f"ipg_her_nu{nu}", "ipg_her.py", "--nu", str(nu)) for nu in (0.0, 0.2, 0.5, 0.8)]
+        grid += [fetch("ipg_her_cv", "ipg_her.py", "--use-cv"), fetch("ipg_her_batch_states", "ipg_her.py", "--off-policy-states", "batch")]
+        grid += [fetch(f"ipg_her_k{k}", "ipg_her.py", "--her-n-sampled-goal", str(k)) for k in (1, 8)]
+        grid += [fetch(f"ipg_her_{s}", "ipg_her.py", "--her-goal-selection-strategy", s) for s in ("final", "episode")]
+    else:  # quick
+        seeds = seeds or (1,)
+        tiny = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4", "--update-epochs", "2", "--eval-episodes", "1")
+        grid = [
+            hopper("ppo_kl", "ppo_kl.py", "--total-timesteps", "512", *tiny),
+            hopper("qprop_ppo", "qprop_ppo.py", "--total-timesteps", "512", "--learning-starts", "256", "--critic-steps", "4", *tiny),
+            fetch("ppo_kl", "ppo_kl.py", "--total-timesteps", "300", "--num-envs", "2", "--num-steps", "50", "--num-minibatches", "4", "--eval-episodes", "2"),
+            fetch("ipg", "ipg_her.py", "--no-her", "--total-timesteps", "300", "--critic-steps", "4", "--eval-freq", "100", "--eval-episodes", "2"),
+            fetch("ipg_her", "ipg_her.py", "--total-timesteps", "300", "--critic-steps", "4", "--eval-freq", "100", "--eval-episodes", "2"),
+        ]  # fmt: skip
+    return [Run(name, script, env_id, seed, flags) for name, script, env_id, flags in grid for seed in seeds]
+
+
+def execute(command: list[str], run_dir: str) -> int:
+    """Run one command with its output kept in ``run_dir``; write and return its exit code."""
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    with open(run_dir / "stdout.log", "w") as out, open(run_dir / "stderr.log", "w") as err:
+        code = subprocess.call(command, cwd=ROOT, env=env, stdout=out, stderr=err)
+    (run_dir / "exit_code").write_text(f"{code}\n")
+    return code
+
+
+def finished(run_dir: Path) -> bool:
+    return (run_dir / "exit_code").exists() and (run_dir / "exit_code").read_text().strip() == "0"
+
+
+def fmt(seconds: float) -> str:
+    return time.strftime("%H:%M:%S", time.gmtime(seconds))
+
+
+def main(args: Args) -> int:
+    suite_dir = Path(args.out_dir) / args.suite
+    runs = [r for r in suite_runs(args.suite, args.seeds) if args.only in r.folder]
+    todo = [r for r in runs if not finished(suite_dir / r.folder)]
+    skipped = len(runs) - len(todo)
+    if args.dry_run:
+        for r in todo:
+            print(" ".join(r.command(suite_dir / r.folder)))
+        print(f"{len(todo)} to run, {skipped} already finished")
+        return 0
+    start, failed, done = time.time(), [], 0
+    print(f"suite {args.suite}: {len(todo)} to run, {skipped} already finished, {args.workers} workers, backend {args.backend}", flush=True)
+
+    def report(run: Run, code: int) -> None:
+        nonlocal done
+        done += 1
+        elapsed = time.time() - start
+        eta = elapsed / done * (len(todo) - done)
+        status = "ok" if code == 0 else f"FAILED (exit {code}; see {suite_dir / run.folder / 'stderr.log'})"
+        print(f"[{done}/{len(todo)}] {run.folder}: {status}  elapsed {fmt(elapsed)}  ETA {fmt(eta)}", flush=True)
+        if code != 0:
+            failed.append(run.folder)
+
+    if args.backend == "ray":
+        try:
+            import ray
+        except ImportError:
+            print("error: --backend ray needs Ray: pip install 'ray[default]'", file=sys.stderr)
+            return 2
+        ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False)
+        remote = ray.remote(num_cpus=1)(execute)
+        pending = {remote.remote(r.command(suite_dir / r.folder), str(suite_dir / r.folder)): r for r in todo}
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            for ref in ready:
+                report(pending.pop(ref), ray.get(ref))
+        ray.shutdown()
+    else:
+        with ThreadPoolExecutor(max_workers=max(args.workers, 1)) as pool:
+            futures = {pool.submit(execute, r.command(suite_dir / r.folder), str(suite_dir / r.folder)): r for r in todo}
+            for future in as_completed(futures):
+                report(futures[future], future.result())
+    print(f"summary: {done - len(failed)} done, {len(failed)} failed, {skipped} skipped, wall time {fmt(time.time() - start)}")
+    for name in failed:
+        print(f"failed: {name}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(tyro.cli(Args)))

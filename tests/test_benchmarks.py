@@ -1,0 +1,51 @@
+"""benchmarks/: the quick suite end to end, resume, the report against the event files, a failing run."""
+
+import re
+
+import numpy as np
+
+from benchmarks import report, run
+from conftest import scalars
+
+
+def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path, capsys):
+    args = run.Args(suite="quick", out_dir=str(tmp_path / "runs"), workers=2)
+    assert run.main(args) == 0
+    runs = run.suite_runs("quick")
+    for r in runs:
+        folder = tmp_path / "runs" / "quick" / r.folder
+        assert (folder / "exit_code").read_text().strip() == "0"
+        assert (folder / "stdout.log").exists() and (folder / "stderr.log").exists()
+    capsys.readouterr()
+    assert run.main(args) == 0  # resume: nothing left to do
+    assert f"0 to run, {len(runs)} already finished" in capsys.readouterr().out
+
+    results = tmp_path / "results"
+    assert report.main(report.Args(suite="quick", runs_dir=str(tmp_path / "runs"), results_dir=str(results))) == 0
+    for name in ("fig3_hopper.png", "fig4_fetchreach.png", "fig5_fetchreach_success.png", "results.md", "curves.json"):
+        assert (results / name).stat().st_size > 0, name
+    text = (results / "results.md").read_text()
+    # the Hopper PPO-KL row's final return is the mean of the last 100 training episodes in the event file
+    row = next(line for line in text.splitlines() if line.startswith("| Hopper-v5 | PPO-KL |"))
+    final = float(re.split(r"\s*\|\s*", row)[4].split("±")[0])
+    (event_dir,) = [p for p in (tmp_path / "runs" / "quick" / "ppo_kl__Hopper-v5__seed1").iterdir() if p.is_dir()]
+    returns = [v for _, v in scalars(event_dir)["charts/episodic_return"]]
+    assert abs(final - np.mean(returns[-100:])) <= 0.5
+    # the FetchReach IPG+HER row's final eval success is the last eval/success_rate
+    row = next(line for line in text.splitlines() if line.startswith("| FetchReach-v4 | IPG+HER |"))
+    (event_dir,) = [p for p in (tmp_path / "runs" / "quick" / "ipg_her__FetchReach-v4__seed1").iterdir() if p.is_dir()]
+    assert abs(float(re.split(r"\s*\|\s*", row)[6]) - scalars(event_dir)["eval/success_rate"][-1][1]) <= 0.005
+    # the export alone redraws the same table
+    assert report.main(report.Args(suite="quick", results_dir=str(results), from_export=True)) == 0
+    assert (results / "results.md").read_text() == text
+
+
+def test_a_failing_run_is_reported_and_the_others_finish(tmp_path, monkeypatch, capsys):
+    good = run.suite_runs("quick")[2]  # FetchReach PPO-KL, a few seconds
+    bad = run.Run("broken", "ppo_kl.py", "NoSuchEnv-v0", 1)
+    monkeypatch.setattr(run, "suite_runs", lambda suite, seeds=(): [bad, good])
+    assert run.main(run.Args(suite="quick", out_dir=str(tmp_path), workers=2)) == 1
+    out = capsys.readouterr().out
+    assert "1 done, 1 failed" in out and "failed: broken__NoSuchEnv-v0__seed1" in out
+    assert "NoSuchEnv-v0" in (tmp_path / "quick" / bad.folder / "stderr.log").read_text()
+    assert (tmp_path / "quick" / good.folder / "exit_code").read_text().strip() == "0"
