@@ -48,7 +48,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 import gymnasium as gym
-import gymnasium_robotics
 import numpy as np
 import torch
 import torch.nn as nn
@@ -61,6 +60,8 @@ from common.gae import compute_gae
 from common.her import HerReplayBuffer
 from common.normalizer import RunningMeanStd
 
+with contextlib.redirect_stderr(io.StringIO()):  # its import prints a notice about Adroit tasks we never use
+    import gymnasium_robotics
 gym.register_envs(gymnasium_robotics)
 torch.distributions.Distribution.set_default_validate_args(False)  # argument checks cost ~10% of a run
 
@@ -196,6 +197,18 @@ def check_args(args: Args, argv: list[str]) -> None:
         fail(f"--tau must be in (0, 1], got {args.tau}")
     if args.critic_steps < 0 or args.her_n_sampled_goal < 0 or args.learning_starts < 0:
         fail("--critic-steps, --her-n-sampled-goal and --learning-starts must be non-negative")
+    if args.capture_video:
+        try:
+            import moviepy  # noqa: F401
+
+            env = gym.make(args.env_id, render_mode="rgb_array")
+            env.reset(seed=0)
+            env.render()
+            env.close()
+        except ImportError:
+            fail("--capture-video needs moviepy: pip install moviepy")
+        except Exception as e:
+            fail(f"--capture-video: rendering {args.env_id} failed ({type(e).__name__}); MuJoCo needs an OpenGL backend, e.g. apt install libosmesa6 and MUJOCO_GL=osmesa")
     if not 0 < args.gamma <= 1 or not 0 <= args.gae_lambda <= 1:
         fail("--gamma must be in (0, 1] and --gae-lambda in [0, 1]")
     goal_task = isinstance(gym.spec(args.env_id).make().observation_space, gym.spaces.Dict)

@@ -31,7 +31,6 @@ import time
 from dataclasses import dataclass
 
 import gymnasium as gym
-import gymnasium_robotics
 import numpy as np
 import torch
 import torch.nn as nn
@@ -43,6 +42,8 @@ from torch.utils.tensorboard import SummaryWriter
 from common.gae import compute_gae
 from common.normalizer import RunningMeanStd
 
+with contextlib.redirect_stderr(io.StringIO()):  # its import prints a notice about Adroit tasks we never use
+    import gymnasium_robotics
 gym.register_envs(gymnasium_robotics)
 torch.distributions.Distribution.set_default_validate_args(False)  # argument checks cost ~10% of a run
 
@@ -145,6 +146,18 @@ def check_args(args: Args) -> None:
         fail(f"--total-timesteps {args.total_timesteps} is less than one batch (num_envs * num_steps = {args.batch_size})")
     if args.batch_size % args.num_minibatches:
         fail(f"batch {args.batch_size} (num_envs * num_steps) does not split into {args.num_minibatches} minibatches; change --num-minibatches")
+    if args.capture_video:
+        try:
+            import moviepy  # noqa: F401
+
+            env = gym.make(args.env_id, render_mode="rgb_array")
+            env.reset(seed=0)
+            env.render()
+            env.close()
+        except ImportError:
+            fail("--capture-video needs moviepy: pip install moviepy")
+        except Exception as e:
+            fail(f"--capture-video: rendering {args.env_id} failed ({type(e).__name__}); MuJoCo needs an OpenGL backend, e.g. apt install libosmesa6 and MUJOCO_GL=osmesa")
     if not 0 < args.gamma <= 1 or not 0 <= args.gae_lambda <= 1:
         fail("--gamma must be in (0, 1] and --gae-lambda in [0, 1]")
     if args.kl_target <= 0 or args.beta_init < 0:

@@ -42,6 +42,8 @@ class Args:
     """final performance: mean over this many last training episodes"""
     seed: int = 0
     """seed of the bootstrap confidence intervals"""
+    readme: str = ""
+    """also write the table and figures into this README, between its results markers"""
 
 
 def read_run(run_dir: Path) -> dict:
@@ -204,6 +206,13 @@ logged episodes, FetchReach returns over 10.
 """
     (results / "results.md").write_text(text)
     print(text)
+    if args.readme:
+        readme = Path(args.readme)
+        start, end = "<!-- results:start -->", "<!-- results:end -->"
+        before, rest = readme.read_text().split(start)
+        figures = "\n".join(f"![{f}]({results.as_posix()}/{f})" for f in ("fig3_hopper.png", "fig4_fetchreach.png", "fig5_fetchreach_success.png"))
+        block = f"{start}\n<!-- written by benchmarks/report.py: do not edit by hand -->\n{text}\n{figures}\n{end}"
+        readme.write_text(before + block + rest.split(end)[1])
     return 0
 
 
