@@ -161,6 +161,24 @@ def table(groups: dict, window: int) -> str:
     return "\n".join(rows)
 
 
+def success_table(groups: dict, checkpoints=(2500, 5000, 10000, 30000)) -> str:
+    """Goal tasks: the evaluation success rate at a few budgets, median and range over seeds."""
+    rows = ["| task | algorithm | " + " | ".join(f"eval success @ {c:,} steps" for c in checkpoints) + " |",
+            "| --- | --- | " + " | ".join("---" for _ in checkpoints) + " |"]  # fmt: skip
+    for group in sorted(groups):
+        name, env_id = group.split("__")
+        runs = [r["eval/success_rate"] for r in groups[group].values() if r.get("eval/success_rate")]
+        if not runs:
+            continue
+        cells = []
+        for c in checkpoints:
+            values = [([v for s, v in run if s <= c] or [np.nan])[-1] for run in runs]
+            values = [v for v in values if np.isfinite(v)]
+            cells.append(f"{np.median(values):.2f} [{min(values):.2f}, {max(values):.2f}]" if values else "-")
+        rows.append(f"| {env_id} | {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
+    return "\n".join(rows) if len(rows) > 2 else ""
+
+
 def main(args: Args) -> int:
     results = Path(args.results_dir or f"benchmarks/results/{args.suite}")
     results.mkdir(parents=True, exist_ok=True)
@@ -193,6 +211,8 @@ def main(args: Args) -> int:
 
     text = f"""{table(groups, args.window)}
 
+{success_table(groups)}
+
 How this was measured: every row is the runs of `benchmarks/run.py --suite {args.suite}` that
 finished, read from their TensorBoard event files by `benchmarks/report.py`. *final*: the mean
 return of the last {args.window} training episodes (stochastic policy); on FetchReach the success
@@ -202,7 +222,8 @@ rate of the last 100 training episodes. Mean ± std and interquartile mean (IQM)
 returns reaches 2000 (Hopper), or where an evaluation reaches 0.9 success (FetchReach). *SPS*:
 environment steps per second of training, evaluation excluded; *wall time*: first to last logged
 event. Curves: mean over seeds with a 95% bootstrap confidence band, Hopper smoothed over 20
-logged episodes, FetchReach returns over 10.
+logged episodes, FetchReach returns over 10. The success table gives, for goal tasks, the median
+[min, max] over seeds of the last evaluation at or before each budget (20 episodes each).
 """
     (results / "results.md").write_text(text)
     print(text)

@@ -148,7 +148,9 @@ def main(args: Args) -> int:
         except ImportError:
             print("error: --backend ray needs Ray: pip install 'ray[default]'", file=sys.stderr)
             return 2
-        ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False)
+        # workers import this module from the project folder (the same path on every node: shared filesystem)
+        ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False,
+                 runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}})  # fmt: skip
         remote = ray.remote(num_cpus=1)(execute)
         pending = {remote.remote(r.command(suite_dir / r.folder), str(suite_dir / r.folder)): r for r in todo}
         while pending:

@@ -3,6 +3,7 @@
 import re
 
 import numpy as np
+import pytest
 
 from benchmarks import report, run
 from conftest import scalars
@@ -49,3 +50,14 @@ def test_a_failing_run_is_reported_and_the_others_finish(tmp_path, monkeypatch, 
     assert "1 done, 1 failed" in out and "failed: broken__NoSuchEnv-v0__seed1" in out
     assert "NoSuchEnv-v0" in (tmp_path / "quick" / bad.folder / "stderr.log").read_text()
     assert (tmp_path / "quick" / good.folder / "exit_code").read_text().strip() == "0"
+
+
+def test_quick_suite_on_a_local_ray_instance(tmp_path):
+    pytest.importorskip("ray")
+    args = run.Args(suite="quick", out_dir=str(tmp_path), backend="ray", only="FetchReach")
+    assert run.main(args) == 0
+    runs = [r for r in run.suite_runs("quick") if "FetchReach" in r.folder]
+    for r in runs:
+        assert (tmp_path / "quick" / r.folder / "exit_code").read_text().strip() == "0"
+        assert any(p.is_dir() for p in (tmp_path / "quick" / r.folder).iterdir()), "no event folder"
+    assert run.main(args) == 0  # resume works the same way

@@ -85,3 +85,30 @@ def test_smoke(tmp_path, env_id, flags):
 )
 def test_bad_input_fails_with_one_clear_line(tmp_path, flags, needle):
     assert_clean_error(run_script("ipg_her.py", tmp_path, *flags, timeout=60), needle)
+
+
+def test_replayed_transitions_never_cross_a_reset_and_keep_the_true_final_observation():
+    import gymnasium as gym
+
+    from toy_envs import CountingGoalEnv
+
+    torch.manual_seed(0)
+    envs = gym.vector.SyncVectorEnv(
+        [lambda: gym.wrappers.RecordEpisodeStatistics(CountingGoalEnv(limit=5)) for _ in range(2)],
+        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
+    )
+    agent = ipg_her.Agent(4, 1, 16)
+    with torch.no_grad():
+        agent.actor_logstd.fill_(0.5)  # some episodes terminate early
+    rb = ipg_her.HerReplayBuffer(1000, 2, 2, 1, 2, lambda ag, g: -np.any(ag != g, axis=-1).astype(np.float32), n_sampled_goal=0)
+    raw_obs, _ = envs.reset(seed=0)
+    ro, _, episodes = ipg_her.collect_rollout(envs, agent, ipg_her.InputNormalizer(2, 2), rb, raw_obs, 30)
+    n = rb.filled
+    assert n == 30 and len(episodes) == int(ro["episode_ends"].sum()) > 0
+    np.testing.assert_array_equal(rb.next_obs[:n], rb.obs[:n] + [0, 1])  # same episode, one step later
+    np.testing.assert_array_equal(rb.next_achieved_goal[:n], rb.achieved_goal[:n] + [0, 1])
+    np.testing.assert_array_equal(rb.desired_goal[:n, :, 0], rb.obs[:n, :, 0])
+    ends = ro["episode_ends"].numpy().astype(bool)
+    truncated = ends & ~ro["terminations"].numpy().astype(bool)
+    assert truncated.any() and np.all(rb.next_obs[:n][truncated][:, 1] == 5)  # the true final observation
+    assert np.all(rb.obs[1:n][ends[:-1]][:, 1] == 0)  # the row after an end starts a new episode

@@ -26,3 +26,16 @@ class CountingEnv(gym.Env):
         terminated = bool(action[0] > 0.9 and self.t >= 2)
         truncated = self.t >= self.limit and not terminated
         return self._obs(), 1.0, terminated, truncated, {}
+
+
+class CountingGoalEnv(CountingEnv):
+    """CountingEnv as a goal task: observation = achieved goal = [episode, step], desired goal = [episode, -1]."""
+
+    def __init__(self, limit: int = 5):
+        super().__init__(limit)
+        box = gym.spaces.Box(-np.inf, np.inf, (2,), np.float64)
+        self.observation_space = gym.spaces.Dict({"observation": box, "achieved_goal": box, "desired_goal": box})
+
+    def _obs(self):
+        now = super()._obs()
+        return {"observation": now, "achieved_goal": now.copy(), "desired_goal": np.array([self.episode % 8, -1.0])}
