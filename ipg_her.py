@@ -42,6 +42,7 @@ import io
 import os
 import random
 import re
+import signal
 import sys
 import time
 from dataclasses import dataclass
@@ -489,6 +490,7 @@ if __name__ == "__main__":
     run_name = f"{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}"
     run_dir = os.path.join(args.log_dir, run_name)
     writer = SummaryWriter(run_dir)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # `kill` ends a run cleanly, as Ctrl-C does
     writer.add_text(
         "hyperparameters",
         "|param|value|\n|-|-|\n%s" % ("\n".join([f"|{key}|{value}|" for key, value in vars(args).items()])),

@@ -103,3 +103,26 @@ def test_same_seed_same_first_update(tmp_path):
 def test_bad_input_fails_with_one_clear_line(tmp_path, flags, needle):
     assert_clean_error(run_script("ppo_kl.py", tmp_path, *flags, timeout=60), needle)
     assert not (tmp_path.exists() and run_dirs(tmp_path)), "no run folder for rejected input"
+
+
+def test_an_interrupted_run_keeps_its_logs_and_saves_its_model(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from conftest import ROOT
+
+    cmd = [sys.executable, str(ROOT / "ppo_kl.py"), "--log-dir", str(tmp_path), "--total-timesteps", "1000000", "--save-model"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    deadline = time.time() + 120
+    while time.time() < deadline and not (tmp_path.exists() and run_dirs(tmp_path) and "losses/beta" in scalars(run_dirs(tmp_path)[0])):
+        time.sleep(1)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "interrupted at global step" in err
+    (run_dir,) = run_dirs(tmp_path)
+    assert (run_dir / "model.pt").exists()
+    assert len(scalars(run_dir)["losses/beta"]) >= 1
