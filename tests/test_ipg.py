@@ -112,3 +112,21 @@ def test_replayed_transitions_never_cross_a_reset_and_keep_the_true_final_observ
     truncated = ends & ~ro["terminations"].numpy().astype(bool)
     assert truncated.any() and np.all(rb.next_obs[:n][truncated][:, 1] == 5)  # the true final observation
     assert np.all(rb.obs[1:n][ends[:-1]][:, 1] == 0)  # the row after an end starts a new episode
+
+
+def test_critic_targets_are_clipped_to_the_return_range():
+    """With a target network that overestimates (Q' = 10), clipped targets are 0, the largest return of a 0/-1 reward."""
+    torch.manual_seed(0)
+    agent, qf = ipg_her.Agent(3, 2, 16), ipg_her.QNetwork(3, 2, 16)
+    qf_target = ipg_her.QNetwork(3, 2, 16)
+    torch.nn.init.zeros_(qf_target.net[-1].weight)
+    torch.nn.init.constant_(qf_target.net[-1].bias, 10.0)
+    d = {"obs": torch.randn(8, 3), "next_obs": torch.randn(8, 3), "actions": torch.randn(8, 2),
+         "rewards": torch.zeros(8), "terminations": torch.zeros(8)}  # fmt: skip
+    with torch.no_grad():
+        q = qf(d["obs"], d["actions"])
+    optimizer = torch.optim.SGD(qf.parameters(), lr=0.0)
+    clipped, _ = ipg_her.critic_step(qf, qf_target, optimizer, agent, d, 0.98, 0.05, (-50.0, 0.0))
+    assert abs(clipped - 0.5 * (q**2).mean().item()) < 1e-5
+    raw, _ = ipg_her.critic_step(qf, qf_target, optimizer, agent, d, 0.98, 0.05)
+    assert raw > clipped + 1.0
