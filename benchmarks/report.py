@@ -43,7 +43,7 @@ class Args:
     seed: int = 0
     """seed of the bootstrap confidence intervals"""
     readme: str = ""
-    """also write the table and figures into this README, between its results markers"""
+    """also write the table and figures into this README, between its markers <!-- results:{suite}:start/end -->"""
 
 
 def read_run(run_dir: Path) -> dict:
@@ -62,16 +62,32 @@ def read_run(run_dir: Path) -> dict:
     return out
 
 
-def collect(runs_dir: Path) -> dict:
-    """{group "name__env_id": {seed: run data}} from the folders run.py wrote."""
+def downsample(points: list, n: int = 300) -> list:
+    """At most ``n`` points: the mean value of consecutive chunks, at each chunk's last step."""
+    if len(points) <= n:
+        return points
+    return [[int(c[-1, 0]), round(float(c[:, 1].mean()), 5)] for c in np.array_split(np.array(points, float), n)]
+
+
+def collect(runs_dir: Path, window: int) -> dict:
+    """{group "name__env_id": {seed: run}} from the folders run.py wrote. Each run keeps its
+    summary (``final``, ``reach``) computed from the full event data, and curves downsampled for
+    plotting: the export stays small and still reproduces the table exactly."""
     groups = defaultdict(dict)
     for folder in sorted(runs_dir.iterdir()):
         if not (folder / "exit_code").exists() or folder.joinpath("exit_code").read_text().strip() != "0":
             continue
         name, env_id, seed = folder.name.split("__")
         event_dirs = [p for p in folder.iterdir() if p.is_dir()]
-        if event_dirs:
-            groups[f"{name}__{env_id}"][seed.removeprefix("seed")] = read_run(max(event_dirs))
+        if not event_dirs:
+            continue
+        run = read_run(max(event_dirs))
+        run["final"] = final_performance(run, bool(run.get("charts/success_rate")), window)
+        run["reach"] = steps_to_threshold(run, env_id, window)
+        for tag in ("charts/episodic_return", "charts/episodic_length", "charts/success_rate", "charts/policy_entropy"):
+            if tag in run:
+                run[tag] = downsample(run[tag])
+        groups[f"{name}__{env_id}"][seed.removeprefix("seed")] = run
     return groups
 
 
@@ -137,26 +153,27 @@ def plot(ax, groups: dict, names: list, env_id: str, tag: str, rng, smooth: int 
     ax.set_ylabel(tag.split("/")[-1].replace("_", " ") + (" (eval)" if tag.startswith("eval") else ""))
     ax.set_title(env_id)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8)
 
 
 def table(groups: dict, window: int) -> str:
-    rows = ["| task | algorithm | seeds | final (mean ± std) | final IQM | final eval | steps to threshold (median) | SPS | wall time (s) |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+    rows = ["| task | algorithm | seeds | final (mean ± std) | final median | final IQM | final eval | steps to threshold (median) | SPS | wall time (s) |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
     for group in sorted(groups, key=lambda g: (g.split("__")[1], g)):
         name, env_id = group.split("__")
         runs = list(groups[group].values())
         goal = any(r.get("charts/success_rate") for r in runs)
-        final = np.array([final_performance(r, goal, window) for r in runs])
+        final = np.array([r["final"] for r in runs])
         eval_tag = "eval/success_rate" if goal else "eval/episodic_return"
         final_eval = np.array([r[eval_tag][-1][1] for r in runs if r.get(eval_tag)])
-        reach = np.array([steps_to_threshold(r, env_id, window) for r in runs])
+        reach = np.array([r["reach"] for r in runs])
         reached = reach[np.isfinite(reach)]
         reach_text = f"{np.median(reached):,.0f} ({len(reached)}/{len(runs)} seeds)" if len(reached) else f"not reached (0/{len(runs)})"
         sps = np.mean([r["charts/SPS"][-1][1] for r in runs if r.get("charts/SPS")])
         wall = np.mean([r["wall_time"] for r in runs])
         f = ".2f" if goal else ".0f"
-        rows.append(f"| {env_id} | {LABELS.get(name, name)} | {len(runs)} | {final.mean():{f}} ± {final.std():{f}} | {iqm(final):{f}} "
+        rows.append(f"| {env_id} | {LABELS.get(name, name)} | {len(runs)} | {final.mean():{f}} ± {final.std():{f}} | {np.median(final):{f}} | {iqm(final):{f}} "
                     f"| {final_eval.mean():{f}} | {reach_text} | {sps:.0f} | {wall:.0f} |")  # fmt: skip
     return "\n".join(rows)
 
@@ -189,7 +206,7 @@ def main(args: Args) -> int:
         if not runs_dir.is_dir():
             print(f"error: no runs in {runs_dir}; run benchmarks/run.py --suite {args.suite} first", file=sys.stderr)
             return 2
-        groups = collect(runs_dir)
+        groups = collect(runs_dir, args.window)
         (results / "curves.json").write_text(json.dumps(groups, separators=(",", ":")))
     rng = np.random.default_rng(args.seed)
 
@@ -216,7 +233,7 @@ def main(args: Args) -> int:
 How this was measured: every row is the runs of `benchmarks/run.py --suite {args.suite}` that
 finished, read from their TensorBoard event files by `benchmarks/report.py`. *final*: the mean
 return of the last {args.window} training episodes (stochastic policy); on FetchReach the success
-rate of the last 100 training episodes. Mean ± std and interquartile mean (IQM) over seeds.
+rate of the last 100 training episodes. Mean ± std, median and interquartile mean (IQM) over seeds.
 *final eval*: the last evaluation of the deterministic policy (Hopper: 10 episodes; FetchReach:
 20). *steps to threshold*: first step where the running mean of the last {args.window} training
 returns reaches 2000 (Hopper), or where an evaluation reaches 0.9 success (FetchReach). *SPS*:
@@ -229,9 +246,10 @@ logged episodes, FetchReach returns over 10. The success table gives, for goal t
     print(text)
     if args.readme:
         readme = Path(args.readme)
-        start, end = "<!-- results:start -->", "<!-- results:end -->"
+        start, end = f"<!-- results:{args.suite}:start -->", f"<!-- results:{args.suite}:end -->"
         before, rest = readme.read_text().split(start)
         figures = "\n".join(f"![{f}]({results.as_posix()}/{f})" for f in ("fig3_hopper.png", "fig4_fetchreach.png", "fig5_fetchreach_success.png"))
+        figures = figures if args.suite == "paper" else ""
         block = f"{start}\n<!-- written by benchmarks/report.py: do not edit by hand -->\n{text}\n{figures}\n{end}"
         readme.write_text(before + block + rest.split(end)[1])
     return 0

@@ -35,7 +35,7 @@ def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path
     # the FetchReach IPG+HER row's final eval success is the last eval/success_rate
     row = next(line for line in text.splitlines() if line.startswith("| FetchReach-v4 | IPG+HER |"))
     (event_dir,) = [p for p in (tmp_path / "runs" / "quick" / "ipg_her__FetchReach-v4__seed1").iterdir() if p.is_dir()]
-    assert abs(float(re.split(r"\s*\|\s*", row)[6]) - scalars(event_dir)["eval/success_rate"][-1][1]) <= 0.005
+    assert abs(float(re.split(r"\s*\|\s*", row)[7]) - scalars(event_dir)["eval/success_rate"][-1][1]) <= 0.005
     # the export alone redraws the same table
     assert report.main(report.Args(suite="quick", results_dir=str(results), from_export=True)) == 0
     assert (results / "results.md").read_text() == text
