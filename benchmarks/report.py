@@ -196,6 +196,25 @@ def success_table(groups: dict, checkpoints=(2500, 5000, 10000, 30000)) -> str:
     return "\n".join(rows) if len(rows) > 2 else ""
 
 
+def draw_paper_figures(groups: dict, results: Path, rng) -> list[str]:
+    """The paper's Figures 3 (Hopper: length and return), 4 (FetchReach: entropy and return), 5 (success)."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    plot(axes[0], groups, ["ppo_kl", "qprop_ppo"], "Hopper-v5", "charts/episodic_length", rng, smooth=20)
+    plot(axes[1], groups, ["ppo_kl", "qprop_ppo"], "Hopper-v5", "charts/episodic_return", rng, smooth=20)
+    fig.tight_layout()
+    fig.savefig(results / "fig3_hopper.png", dpi=100)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    plot(axes[0], groups, ["ppo_kl", "qprop_ppo", "ipg_her"], "FetchReach-v4", "charts/policy_entropy", rng)
+    plot(axes[1], groups, ["ppo_kl", "qprop_ppo", "ipg_her"], "FetchReach-v4", "charts/episodic_return", rng, smooth=10)
+    fig.tight_layout()
+    fig.savefig(results / "fig4_fetchreach.png", dpi=100)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    plot(ax, groups, ["ppo_kl", "ipg", "ipg_her"], "FetchReach-v4", "eval/success_rate", rng, per_episode=True)
+    fig.tight_layout()
+    fig.savefig(results / "fig5_fetchreach_success.png", dpi=100)
+    return ["fig3_hopper.png", "fig4_fetchreach.png", "fig5_fetchreach_success.png"]
+
+
 def main(args: Args) -> int:
     results = Path(args.results_dir or f"benchmarks/results/{args.suite}")
     results.mkdir(parents=True, exist_ok=True)
@@ -210,20 +229,20 @@ def main(args: Args) -> int:
         (results / "curves.json").write_text(json.dumps(groups, separators=(",", ":")))
     rng = np.random.default_rng(args.seed)
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))  # Figure 3
-    plot(axes[0], groups, ["ppo_kl", "qprop_ppo"], "Hopper-v5", "charts/episodic_length", rng, smooth=20)
-    plot(axes[1], groups, ["ppo_kl", "qprop_ppo"], "Hopper-v5", "charts/episodic_return", rng, smooth=20)
-    fig.tight_layout()
-    fig.savefig(results / "fig3_hopper.png", dpi=100)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))  # Figure 4
-    plot(axes[0], groups, ["ppo_kl", "qprop_ppo", "ipg_her"], "FetchReach-v4", "charts/policy_entropy", rng)
-    plot(axes[1], groups, ["ppo_kl", "qprop_ppo", "ipg_her"], "FetchReach-v4", "charts/episodic_return", rng, smooth=10)
-    fig.tight_layout()
-    fig.savefig(results / "fig4_fetchreach.png", dpi=100)
-    fig, ax = plt.subplots(figsize=(6, 4))  # Figure 5
-    plot(ax, groups, ["ppo_kl", "ipg", "ipg_her"], "FetchReach-v4", "eval/success_rate", rng, per_episode=True)
-    fig.tight_layout()
-    fig.savefig(results / "fig5_fetchreach_success.png", dpi=100)
+    if args.suite in ("paper", "quick"):  # quick has the paper's shape
+        figures = draw_paper_figures(groups, results, rng)
+    else:  # one figure per task with every variant of the suite
+        figures = []
+        for env_id in sorted({g.split("__")[1] for g in groups}):
+            names = sorted(g.split("__")[0] for g in groups if g.endswith(f"__{env_id}"))
+            fig, ax = plt.subplots(figsize=(7, 4))
+            if env_id.startswith("Fetch"):
+                plot(ax, groups, names, env_id, "eval/success_rate", rng, per_episode=True)
+            else:
+                plot(ax, groups, names, env_id, "charts/episodic_return", rng, smooth=20)
+            fig.tight_layout()
+            figures.append(f"{args.suite}_{env_id}.png")
+            fig.savefig(results / figures[-1], dpi=100)
     plt.close("all")
 
     text = f"""{table(groups, args.window)}
@@ -248,9 +267,8 @@ logged episodes, FetchReach returns over 10. The success table gives, for goal t
         readme = Path(args.readme)
         start, end = f"<!-- results:{args.suite}:start -->", f"<!-- results:{args.suite}:end -->"
         before, rest = readme.read_text().split(start)
-        figures = "\n".join(f"![{f}]({results.as_posix()}/{f})" for f in ("fig3_hopper.png", "fig4_fetchreach.png", "fig5_fetchreach_success.png"))
-        figures = figures if args.suite == "paper" else ""
-        block = f"{start}\n<!-- written by benchmarks/report.py: do not edit by hand -->\n{text}\n{figures}\n{end}"
+        images = "\n".join(f"![{f}]({results.as_posix()}/{f})" for f in figures)
+        block = f"{start}\n<!-- written by benchmarks/report.py: do not edit by hand -->\n{text}\n{images}\n{end}"
         readme.write_text(before + block + rest.split(end)[1])
     return 0
 
