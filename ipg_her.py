@@ -581,7 +581,7 @@ if __name__ == "__main__":
 
             # ALGO LOGIC: critic first (eq. 6-7), so that A_bar and the off-policy term see the new data
             learning = global_step >= args.learning_starts and rb.num_sampleable() > 0
-            if learning:
+            if learning and args.critic_steps > 0:
                 for _ in range(args.critic_steps):
                     d = sample_replay(rb, norm, args.critic_batch_size)
                     critic_loss, q_values = critic_step(qf, qf_target, q_optimizer, agent, d, args.gamma, args.tau, target_range)

@@ -549,8 +549,8 @@ if __name__ == "__main__":
             reward_scale = float(1.0 / np.sqrt(ret_rms.var + 1e-8)) if args.norm_reward else 1.0
 
             # ALGO LOGIC: critic first (Algorithm 1 of Q-Prop), then A_bar and eta with the trained critic
-            learning = global_step >= args.learning_starts and args.eta_mode != "none"
-            if learning:
+            learning = global_step >= args.learning_starts and args.eta_mode != "none" and rb.num_sampleable() > 0
+            if learning and args.critic_steps > 0:
                 for _ in range(args.critic_steps):
                     d = sample_replay(rb, obs_rms, reward_scale, args.critic_batch_size)
                     critic_loss, q_values = critic_step(qf, qf_target, q_optimizer, agent, d, args.gamma, args.tau)
