@@ -21,12 +21,8 @@ truncated episode (time limit); a terminated one (the hopper fell) does not boot
 Goal tasks (FetchReach) have a Dict observation, flattened here into one policy input.
 """
 
-import contextlib
-import io
 import os
 import random
-import re
-import signal
 import sys
 import time
 from dataclasses import dataclass
@@ -36,17 +32,14 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.optim as optim
-import tyro
 from torch.distributions import Normal, kl_divergence
-from torch.utils.tensorboard import SummaryWriter
 
+from common import cli
 from common.gae import compute_gae
 from common.normalizer import RunningMeanStd
 
-with contextlib.redirect_stderr(io.StringIO()):  # its import prints a notice about Adroit tasks we never use
-    import gymnasium_robotics
-gym.register_envs(gymnasium_robotics)
-torch.distributions.Distribution.set_default_validate_args(False)  # argument checks cost ~10% of a run
+cli.register_goal_tasks()
+torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
 
 
 @dataclass
@@ -64,7 +57,7 @@ class Args:
     log_dir: str = "runs"
     """parent folder of the run folders"""
     eval_freq: int = 100_000
-    """evaluate the deterministic (mean) policy every this many environment steps (0: only at the end)"""
+    """evaluate the deterministic (mean) policy every this many env steps (0: only at the end)"""
     eval_episodes: int = 10
     """episodes per evaluation"""
     torch_threads: int = 1
@@ -94,11 +87,11 @@ class Args:
     norm_adv: bool = True
     """normalise the advantages of a batch to zero mean and unit std"""
     kl_target: float = 0.02
-    """d_targ: the KL divergence per update the beta rule aims for (0.02 beat 0.01 on Hopper, measured)"""
+    """d_targ: the mean KL divergence per update the beta rule aims for"""
     beta_init: float = 1.0
     """initial KL penalty coefficient beta (the PPO paper: insensitive)"""
     kl_early_stop: float | None = None
-    """stop the epochs of an update once the mean KL exceeds this many times kl_target (None: never)"""
+    """stop an update's epochs once the mean KL exceeds this many times kl_target (None: never)"""
     init_log_std: float = -0.5
     """initial log std of the Gaussian policy"""
     vf_coef: float = 0.5
@@ -119,57 +112,19 @@ class Args:
     """the number of iterations (computed in runtime)"""
 
 
-def fail(message: str) -> None:
-    """Bad input: one clear line, no traceback, non-zero exit."""
-    print(f"error: {message}", file=sys.stderr)
-    sys.exit(2)
-
-
-def parse_args() -> Args:
-    """``tyro.cli``, with a parse error reported as one line (tyro draws a box)."""
-    captured = io.StringIO()
-    try:
-        with contextlib.redirect_stderr(captured):
-            return tyro.cli(Args)
-    except SystemExit as e:
-        if e.code:
-            fail(" ".join(re.sub(r"[│╭╮╰╯─]", " ", captured.getvalue()).split()))
-        raise
-
-
 def check_args(args: Args) -> None:
-    if args.env_id not in gym.registry:
-        fail(f"unknown --env-id {args.env_id!r}; use a registered gymnasium id such as Hopper-v5 or FetchReach-v4")
-    for name in ("total_timesteps", "num_envs", "num_steps", "num_minibatches", "update_epochs", "eval_episodes"):
-        if getattr(args, name) <= 0:
-            fail(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
-    if args.total_timesteps < args.batch_size:
-        fail(f"--total-timesteps {args.total_timesteps} is less than one batch (num_envs * num_steps = {args.batch_size})")
-    if args.batch_size % args.num_minibatches:
-        fail(f"batch {args.batch_size} (num_envs * num_steps) does not split into {args.num_minibatches} minibatches; change --num-minibatches")
-    if args.capture_video:
-        try:
-            import moviepy  # noqa: F401
-
-            env = gym.make(args.env_id, render_mode="rgb_array")
-            env.reset(seed=0)
-            env.render()
-            env.close()
-        except ImportError:
-            fail("--capture-video needs moviepy: pip install moviepy")
-        except Exception as e:
-            fail(f"--capture-video: rendering {args.env_id} failed ({type(e).__name__}); MuJoCo needs an OpenGL backend, e.g. apt install libosmesa6 and MUJOCO_GL=osmesa")
-    if not 0 < args.gamma <= 1 or not 0 <= args.gae_lambda <= 1:
-        fail("--gamma must be in (0, 1] and --gae-lambda in [0, 1]")
-    if args.kl_target <= 0 or args.beta_init < 0:
-        fail("--kl-target must be positive and --beta-init non-negative")
+    """The checks every script shares (``common/cli.py``); PPO-KL has no others."""
+    cli.check_common(args)
 
 
+# ENV SETUP
 def make_env(env_id: str, video_dir: str | None = None):
     def thunk():
         env = gym.make(env_id, render_mode="rgb_array" if video_dir else None)
         if video_dir:
-            env = gym.wrappers.RecordVideo(env, video_dir, episode_trigger=lambda e: True, disable_logger=True)
+            env = gym.wrappers.RecordVideo(
+                env, video_dir, episode_trigger=lambda e: True, disable_logger=True
+            )
         if isinstance(env.observation_space, gym.spaces.Dict):  # goal task: one flat policy input
             env = gym.wrappers.FlattenObservation(env)  # [achieved_goal, desired_goal, observation]
         return gym.wrappers.RecordEpisodeStatistics(env)
@@ -177,6 +132,7 @@ def make_env(env_id: str, video_dir: str | None = None):
     return thunk
 
 
+# ALGO LOGIC: networks
 def layer_init(layer: nn.Linear, std: float = np.sqrt(2), bias_const: float = 0.0) -> nn.Linear:
     torch.nn.init.orthogonal_(layer.weight, std)
     torch.nn.init.constant_(layer.bias, bias_const)
@@ -184,7 +140,7 @@ def layer_init(layer: nn.Linear, std: float = np.sqrt(2), bias_const: float = 0.
 
 
 class Agent(nn.Module):
-    """Gaussian policy pi_theta(a|s) = N(mu_theta(s), diag(exp(log_std))^2) and baseline V_phi(s)."""
+    """Gaussian policy pi_theta(a|s) = N(mu_theta(s), diag(exp(log_std))^2), baseline V_phi(s)."""
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: int = 64, init_log_std: float = 0.0):
         super().__init__()
@@ -198,7 +154,8 @@ class Agent(nn.Module):
             layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
             layer_init(nn.Linear(hidden, act_dim), std=0.01),
         )  # fmt: skip
-        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))  # state-independent log std
+        # state-independent log std
+        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))
 
     def get_value(self, x: torch.Tensor) -> torch.Tensor:
         return self.critic(x).squeeze(-1)
@@ -208,55 +165,15 @@ class Agent(nn.Module):
         return Normal(mean, self.actor_logstd.expand_as(mean).exp())
 
 
-# ALGO LOGIC: the PPO-KL update (eq. 5)
-def ppo_kl_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args) -> tuple[float, dict]:
-    """``update_epochs`` passes of minibatch Adam on eq. 5, then the beta rule.
-
-    ``b`` holds the flattened batch: obs, actions, logprobs, mean, std (of pi_old), advantages,
-    returns. Returns the new beta and the statistics to log.
-    """
-    batch_size = b["obs"].shape[0]
-    minibatch_size = batch_size // args.num_minibatches
-    adv = b["advantages"]
-    if args.norm_adv:
-        adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-    pi_old = Normal(b["mean"], b["std"])
-    epochs_run = 0
-    for epoch in range(args.update_epochs):
-        perm = torch.randperm(batch_size)
-        for start in range(0, batch_size, minibatch_size):
-            mb = perm[start : start + minibatch_size]
-            pi = agent.dist(b["obs"][mb])
-            ratio = (pi.log_prob(b["actions"][mb]).sum(-1) - b["logprobs"][mb]).exp()  # r_t(theta)
-            kl = kl_divergence(Normal(b["mean"][mb], b["std"][mb]), pi).sum(-1).mean()  # analytic Gaussian KL
-            pg_loss = -(ratio * adv[mb]).mean() + beta * kl  # eq. 5, negated
-            v_loss = 0.5 * ((agent.get_value(b["obs"][mb]) - b["returns"][mb]) ** 2).mean()
-            loss = pg_loss + args.vf_coef * v_loss
-            optimizer.zero_grad()
-            loss.backward()
-            nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
-            optimizer.step()
-        epochs_run = epoch + 1
-        if args.kl_early_stop is not None:
-            with torch.no_grad():
-                d = kl_divergence(pi_old, agent.dist(b["obs"])).sum(-1).mean().item()
-            if d > args.kl_early_stop * args.kl_target:
-                break
-    with torch.no_grad():
-        pi = agent.dist(b["obs"])
-        d = kl_divergence(pi_old, pi).sum(-1).mean().item()  # d: mean KL[pi_old || pi_new] of the update
-        entropy = pi.entropy().sum(-1).mean().item()
-    stats = {"policy_loss": pg_loss.item(), "value_loss": v_loss.item(), "approx_kl": d, "beta": beta,
-             "epochs": epochs_run, "entropy": entropy}  # fmt: skip
-    if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
-        beta /= 2
-    elif d > args.kl_target * 1.5:
-        beta *= 2
-    return beta, stats
-
-
 # ALGO LOGIC: rollout with the current policy
-def collect_rollout(envs, agent: Agent, obs_rms: RunningMeanStd, raw_obs: np.ndarray, num_steps: int, update_obs_rms: bool = True):
+def collect_rollout(
+    envs,
+    agent: Agent,
+    obs_rms: RunningMeanStd,
+    raw_obs: np.ndarray,
+    num_steps: int,
+    update_obs_rms: bool = True,
+):
     """Step the vector env ``num_steps`` times with actions sampled from pi_theta.
 
     Returns ``(rollout, raw_obs, episodes)``: ``rollout`` holds time-major ``(T, N, ...)`` tensors
@@ -278,21 +195,31 @@ def collect_rollout(envs, agent: Agent, obs_rms: RunningMeanStd, raw_obs: np.nda
         ro["obs"][t] = torch.as_tensor(obs_rms.normalize(raw_obs))
         with torch.no_grad():
             ro["actions"][t] = agent.dist(ro["obs"][t]).sample()
-        raw_obs, reward, terminated, truncated, infos = envs.step(np.clip(ro["actions"][t].numpy(), low, high))
+        action = ro["actions"][t].numpy()
+        next_raw_obs, reward, terminated, truncated, infos = envs.step(np.clip(action, low, high))
         ended = terminated | truncated
         ro["rewards"][t] = torch.as_tensor(reward)
         ro["terminations"][t] = torch.as_tensor(terminated)
         ro["episode_ends"][t] = torch.as_tensor(ended)
-        for i in np.flatnonzero(ended):  # SAME_STEP autoreset: raw_obs[i] is already the next episode's first
+        # SAME_STEP autoreset: where an episode ended, next_raw_obs[i] is the next one's first
+        for i in np.flatnonzero(ended):
             ro["final_obs"][t, i] = torch.as_tensor(obs_rms.normalize(infos["final_obs"][i]))
             info = infos["final_info"]
             success = float(info["is_success"][i]) if "is_success" in info else None
-            episodes.append((t, i, float(info["episode"]["r"][i]), int(info["episode"]["l"][i]), success))
+            episode_return, length = float(info["episode"]["r"][i]), int(info["episode"]["l"][i])
+            episodes.append((t, i, episode_return, length, success))
+        raw_obs = next_raw_obs
     return ro, raw_obs, episodes
 
 
-def scale_rewards(rewards: torch.Tensor, episode_ends: torch.Tensor, ret_rms: RunningMeanStd, running_return: np.ndarray, gamma: float) -> torch.Tensor:
-    """Divide rewards by the running std of the discounted return (CleanRL's NormalizeReward, per batch).
+def scale_rewards(
+    rewards: torch.Tensor,
+    episode_ends: torch.Tensor,
+    ret_rms: RunningMeanStd,
+    running_return: np.ndarray,
+    gamma: float,
+) -> torch.Tensor:
+    """Divide rewards by the running std of the discounted return (CleanRL's NormalizeReward).
 
     ``running_return`` (one per env) carries the discounted return across batches; it is reset
     where an episode ends. The statistics are updated with this batch before scaling.
@@ -307,7 +234,9 @@ def scale_rewards(rewards: torch.Tensor, episode_ends: torch.Tensor, ret_rms: Ru
 
 
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
-def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae_lambda: float) -> dict:
+def make_batch(
+    agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae_lambda: float
+) -> dict:
     """GAE advantages and the pi_old statistics of a rollout, flattened into one batch.
 
     V(s_{t+1}) is the next row's value within an episode, V(final_obs) where the episode ended at
@@ -316,8 +245,13 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
     with torch.no_grad():
         values = agent.get_value(ro["obs"])
         next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
-        next_values = torch.where(ro["episode_ends"].bool(), agent.get_value(ro["final_obs"]), next_values)
-        advantages = compute_gae(ro["rewards"], values, next_values, ro["terminations"], ro["episode_ends"], gamma, gae_lambda)
+        next_values = torch.where(
+            ro["episode_ends"].bool(), agent.get_value(ro["final_obs"]), next_values
+        )
+        advantages = compute_gae(
+            ro["rewards"], values, next_values, ro["terminations"], ro["episode_ends"],
+            gamma=gamma, gae_lambda=gae_lambda,
+        )  # fmt: skip
         pi_old = agent.dist(ro["obs"])
         act_dim = ro["actions"].shape[-1]
         return {
@@ -332,10 +266,69 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
         }
 
 
-def evaluate(agent: Agent, obs_rms: RunningMeanStd, env_id: str, episodes: int, seed: int, video_dir: str | None = None):
+# ALGO LOGIC: the PPO-KL update (eq. 5)
+def ppo_kl_update(
+    agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args
+) -> tuple[float, dict]:
+    """``update_epochs`` passes of minibatch Adam on eq. 5, then the beta rule.
+
+    ``b`` holds the flattened batch: obs, actions, logprobs, mean, std (of pi_old), advantages,
+    returns. Returns the new beta and the statistics to log.
+    """
+    batch_size = b["obs"].shape[0]
+    minibatch_size = batch_size // args.num_minibatches
+    adv = b["advantages"]
+    if args.norm_adv:
+        adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    pi_old = Normal(b["mean"], b["std"])
+    epochs_run = 0
+    for epoch in range(args.update_epochs):
+        perm = torch.randperm(batch_size)
+        for start in range(0, batch_size, minibatch_size):
+            mb = perm[start : start + minibatch_size]
+            pi = agent.dist(b["obs"][mb])
+            ratio = (pi.log_prob(b["actions"][mb]).sum(-1) - b["logprobs"][mb]).exp()  # r_t(theta)
+            pi_old_mb = Normal(b["mean"][mb], b["std"][mb])
+            kl = kl_divergence(pi_old_mb, pi).sum(-1).mean()  # analytic Gaussian KL
+            pg_loss = -(ratio * adv[mb]).mean() + beta * kl  # eq. 5, negated
+            v_loss = 0.5 * ((agent.get_value(b["obs"][mb]) - b["returns"][mb]) ** 2).mean()
+            loss = pg_loss + args.vf_coef * v_loss
+            optimizer.zero_grad()
+            loss.backward()
+            nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+            optimizer.step()
+        epochs_run = epoch + 1
+        if args.kl_early_stop is not None:
+            with torch.no_grad():
+                d = kl_divergence(pi_old, agent.dist(b["obs"])).sum(-1).mean().item()
+            if d > args.kl_early_stop * args.kl_target:
+                break
+    with torch.no_grad():
+        pi = agent.dist(b["obs"])
+        d = (
+            kl_divergence(pi_old, pi).sum(-1).mean().item()
+        )  # d: mean KL[pi_old || pi] of the update
+        entropy = pi.entropy().sum(-1).mean().item()
+    stats = {"policy_loss": pg_loss.item(), "value_loss": v_loss.item(), "approx_kl": d,
+             "beta": beta, "epochs": epochs_run, "entropy": entropy}  # fmt: skip
+    if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
+        beta /= 2
+    elif d > args.kl_target * 1.5:
+        beta *= 2
+    return beta, stats
+
+
+def evaluate(
+    agent: Agent,
+    obs_rms: RunningMeanStd,
+    env_id: str,
+    episodes: int,
+    seed: int,
+    video_dir: str | None = None,
+):
     """Run the deterministic policy a = mu_theta(s) with frozen normaliser statistics.
 
-    Returns the episodic returns and, on goal tasks, the successes (``is_success`` at the last step).
+    Returns the episodic returns and, on goal tasks, the successes (``is_success`` at the end).
     """
     env = make_env(env_id, video_dir)()
     returns, successes = [], []
@@ -345,7 +338,9 @@ def evaluate(agent: Agent, obs_rms: RunningMeanStd, env_id: str, episodes: int, 
         while not done:
             with torch.no_grad():
                 action = agent.actor_mean(torch.as_tensor(obs_rms.normalize(obs)[None])).numpy()[0]
-            obs, _, terminated, truncated, info = env.step(np.clip(action, env.action_space.low, env.action_space.high))
+            obs, _, terminated, truncated, info = env.step(
+                np.clip(action, env.action_space.low, env.action_space.high)
+            )
             done = terminated or truncated
         returns.append(info["episode"]["r"])
         if "is_success" in info:
@@ -355,19 +350,12 @@ def evaluate(agent: Agent, obs_rms: RunningMeanStd, env_id: str, episodes: int, 
 
 
 if __name__ == "__main__":
-    args = parse_args()
-    args.batch_size = args.num_envs * args.num_steps
-    args.minibatch_size = args.batch_size // max(args.num_minibatches, 1)
-    args.num_iterations = args.total_timesteps // max(args.batch_size, 1)
+    args = cli.parse_args(Args)
     check_args(args)
-    run_name = f"{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}"
-    run_dir = os.path.join(args.log_dir, run_name)
-    writer = SummaryWriter(run_dir)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)  # `kill` ends a run cleanly, as Ctrl-C does
-    writer.add_text(
-        "hyperparameters",
-        "|param|value|\n|-|-|\n%s" % ("\n".join([f"|{key}|{value}|" for key, value in vars(args).items()])),
-    )
+    args.batch_size = args.num_envs * args.num_steps
+    args.minibatch_size = args.batch_size // args.num_minibatches
+    args.num_iterations = args.total_timesteps // args.batch_size
+    run_dir, writer = cli.start_run(args)
 
     # TRY NOT TO MODIFY: seeding
     random.seed(args.seed)
@@ -376,21 +364,25 @@ if __name__ == "__main__":
     torch.backends.cudnn.deterministic = args.torch_deterministic
     torch.set_num_threads(args.torch_threads)
 
-    # env setup
+    # ENV SETUP
     envs = gym.vector.SyncVectorEnv(
-        [make_env(args.env_id) for _ in range(args.num_envs)], autoreset_mode=gym.vector.AutoresetMode.SAME_STEP
+        [make_env(args.env_id) for _ in range(args.num_envs)],
+        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
     )
     assert envs.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
-    assert isinstance(envs.single_action_space, gym.spaces.Box), "only continuous action spaces are supported"
-    obs_dim, act_dim = envs.single_observation_space.shape[0], envs.single_action_space.shape[0]
+    assert isinstance(envs.single_action_space, gym.spaces.Box), "only continuous actions"
+    obs_dim = envs.single_observation_space.shape[0]
+    act_dim = envs.single_action_space.shape[0]
     envs.single_action_space.seed(args.seed)
 
+    # ALGO LOGIC: networks, optimiser, normalisers
     agent = Agent(obs_dim, act_dim, init_log_std=args.init_log_std)
     optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
     obs_rms = RunningMeanStd((obs_dim,))
-    ret_rms, running_return = RunningMeanStd(()), np.zeros(args.num_envs)  # for reward scaling
+    ret_rms, running_return = RunningMeanStd(()), np.zeros(args.num_envs)  # reward scaling
     beta = args.beta_init
 
+    # TRY NOT TO MODIFY: start the game
     global_step, train_time, last_eval, exit_code = 0, 0.0, 0, 0
     recent_success = []  # is_success of the last 100 training episodes (goal tasks)
     raw_obs, _ = envs.reset(seed=args.seed)
@@ -398,9 +390,15 @@ if __name__ == "__main__":
         for iteration in range(1, args.num_iterations + 1):
             t0 = time.time()
             if args.anneal_lr:
-                optimizer.param_groups[0]["lr"] = (1.0 - (iteration - 1.0) / args.num_iterations) * args.learning_rate
+                frac = 1.0 - (iteration - 1.0) / args.num_iterations
+                optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
-            ro, raw_obs, episodes = collect_rollout(envs, agent, obs_rms, raw_obs, args.num_steps, args.norm_obs)
+            # ALGO LOGIC: rollout
+            ro, raw_obs, episodes = collect_rollout(
+                envs, agent, obs_rms, raw_obs, args.num_steps, update_obs_rms=args.norm_obs
+            )
+
+            # TRY NOT TO MODIFY: record rewards for plotting purposes
             for t, _, episodic_return, length, success in episodes:
                 step = global_step + (t + 1) * args.num_envs
                 writer.add_scalar("charts/episodic_return", episodic_return, step)
@@ -409,31 +407,48 @@ if __name__ == "__main__":
                     recent_success = (recent_success + [success])[-100:]
                     writer.add_scalar("charts/success_rate", np.mean(recent_success), step)
             global_step += args.batch_size
-            if args.norm_reward:
-                ro["rewards"] = scale_rewards(ro["rewards"], ro["episode_ends"], ret_rms, running_return, args.gamma)
 
-            b = make_batch(agent, ro, torch.as_tensor(obs_rms.normalize(raw_obs)), args.gamma, args.gae_lambda)
+            # ALGO LOGIC: advantages (eq. 3-4) on scaled rewards
+            if args.norm_reward:
+                ro["rewards"] = scale_rewards(
+                    ro["rewards"], ro["episode_ends"], ret_rms, running_return, args.gamma
+                )
+            last_obs = torch.as_tensor(obs_rms.normalize(raw_obs))
+            b = make_batch(agent, ro, last_obs, args.gamma, args.gae_lambda)
+
+            # ALGO LOGIC: the PPO-KL update (eq. 5)
             beta, stats = ppo_kl_update(agent, optimizer, b, beta, args)
             if not all(np.isfinite(v) for v in stats.values()):
-                raise FloatingPointError(f"a loss became NaN or infinite at global step {global_step}: {stats}")
+                raise FloatingPointError(
+                    f"a loss became NaN or infinite at global step {global_step}: {stats}"
+                )
             train_time += time.time() - t0
 
+            # TRY NOT TO MODIFY: record losses for plotting purposes
             writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
             writer.add_scalar("charts/policy_entropy", stats["entropy"], global_step)
             writer.add_scalar("charts/SPS", int(global_step / train_time), global_step)
             for key in ("policy_loss", "value_loss", "approx_kl", "beta", "epochs"):
                 writer.add_scalar(f"losses/{key}", stats[key], global_step)
 
-            if iteration == args.num_iterations or (args.eval_freq > 0 and global_step - last_eval >= args.eval_freq):
+            # TRY NOT TO MODIFY: evaluate the deterministic policy
+            due = args.eval_freq > 0 and global_step - last_eval >= args.eval_freq
+            if iteration == args.num_iterations or due:
                 last_eval = global_step
                 video_dir = os.path.join(run_dir, "videos") if args.capture_video else None
-                eval_returns, eval_success = evaluate(agent, obs_rms, args.env_id, args.eval_episodes, args.seed + 10_000, video_dir)
+                eval_returns, eval_success = evaluate(
+                    agent, obs_rms, args.env_id, args.eval_episodes, args.seed + 10_000, video_dir
+                )
                 writer.add_scalar("eval/episodic_return", eval_returns.mean(), global_step)
+                message = f"step={global_step} eval_return={eval_returns.mean():.1f}"
                 if len(eval_success):
                     writer.add_scalar("eval/success_rate", eval_success.mean(), global_step)
-                print(f"step={global_step} eval_return={eval_returns.mean():.1f} SPS={int(global_step / train_time)}", flush=True)
+                    message += f" eval_success={eval_success.mean():.2f}"
+                print(f"{message} SPS={int(global_step / train_time)}", flush=True)
     except KeyboardInterrupt:
-        print(f"interrupted at global step {global_step}; logs are kept in {run_dir}", file=sys.stderr)
+        print(
+            f"interrupted at global step {global_step}; logs are kept in {run_dir}", file=sys.stderr
+        )
         exit_code = 130
     except FloatingPointError as e:
         print(f"error: {e}", file=sys.stderr)
@@ -441,7 +456,8 @@ if __name__ == "__main__":
     finally:
         if args.save_model:
             model_path = os.path.join(run_dir, "model.pt")
-            torch.save({"agent": agent.state_dict(), "obs_rms": obs_rms.state_dict(), "args": vars(args)}, model_path)
+            checkpoint = {"agent": agent.state_dict(), "obs_rms": obs_rms.state_dict()}
+            torch.save({**checkpoint, "args": vars(args)}, model_path)
             print(f"model saved to {model_path}")
         envs.close()
         writer.close()

@@ -7,18 +7,20 @@ Baselines" (the normalisation bias); Schulman et al. 2017 (PPO-KL).
 Q-Prop subtracts from the Monte Carlo advantage A_hat a control variate built from an off-policy
 critic Q_w, and adds back its expectation analytically, so the gradient stays unbiased:
 
-    A_bar(s, a) = grad_a Q_w(s, a)|_{a = mu(s)} . (a - mu(s))                                   (eq. 9)
-    grad J = E[grad log pi(a|s) (A_hat - eta A_bar)] + E[eta grad_a Q_w(s, a)|_{mu(s)} grad mu(s)]  (eq. 8)
+    A_bar(s, a) = grad_a Q_w(s, a)|_{a = mu(s)} . (a - mu(s))                           (eq. 9)
+    grad J = E[grad log pi(a|s) (A_hat - eta A_bar)]
+             + E[eta grad_a Q_w(s, a)|_{a = mu(s)} grad_theta mu(s)]                     (eq. 8)
 
 A_bar has mean zero under pi (it is linear in a - mu), and the second term is the deterministic
 policy gradient of eq. 7, which is the gradient of eta * Q_w(s, mu_theta(s)). Inside PPO-KL one
 minibatch loss is
 
-    L = -E[r_t(theta) (A_hat_t - eta_t A_bar_t)] - E[eta_t Q_w(s_t, mu_theta(s_t))] + beta * KL[pi_old || pi_theta]
+    L = -E[r_t(theta) (A_hat_t - eta_t A_bar_t)] - E[eta_t Q_w(s_t, mu_theta(s_t))]
+        + beta * KL[pi_old || pi_theta]
 
-eta (``--eta-mode``): ``conservative`` (the paper's main method) eta_t = 1 where A_hat_t A_bar_t > 0,
-else 0; ``aggressive`` eta_t = sign(A_hat_t A_bar_t); ``ones`` eta_t = 1; ``none`` eta_t = 0, which
-is exactly PPO-KL (``ppo_kl.py``).
+eta (``--eta-mode``): ``conservative`` (the paper's main method) eta_t = 1 where
+A_hat_t A_bar_t > 0, else 0; ``aggressive`` eta_t = sign(A_hat_t A_bar_t); ``ones`` eta_t = 1;
+``none`` eta_t = 0, which is exactly PPO-KL (``ppo_kl.py``).
 
 Normalisation (``--normalization``): PPO normalises the learning signal A_hat - eta A_bar by its
 std sigma. The original Q-Prop code did that and left the analytic term alone (``paper``), which
@@ -27,24 +29,20 @@ gradient is then biased (Tucker et al. 2018 showed that this bias, not the contr
 what beat TRPO). ``unbiased`` divides the analytic term by the same sigma, so that the update is
 a positive multiple of the unbiased estimator of eq. 8.
 
-Critic (eq. 6-7): Q_w learns off-policy from a replay buffer of every transition, target
-r + gamma (1 - terminated) Q_w'(s', mu_theta(s')) with the current policy's mean (no target policy
-network), soft target update after every critic step (eq. 6). Rewards are stored raw and scaled
-at sample time by the same running std that scales GAE's rewards, so critic and GAE share one
-scale. Order (the paper's Algorithm 1): the critic trains on the new batch first; A_bar, eta and
-the analytic term then use the trained critic.
+Critic (eq. 6-7): Q_w(s, a) learns off-policy from the replay buffer with the target
+r + gamma (1 - terminated) Q_w'(s', mu_theta(s')), using the current policy's mean at s' (no target
+policy network), and a soft target update after every critic step (eq. 6). Rewards are stored raw
+and scaled at sample time by the same running std that scales GAE's rewards, so critic and GAE
+share one scale. The critic trains on the new data *before* the policy update, so A_bar, eta and
+the analytic term use the updated critic (Q-Prop's Algorithm 1).
 
 Environment handling is ``ppo_kl.py``'s: SAME_STEP autoreset, true final observations,
 truncation bootstrapped; goal tasks flattened into one input (no hindsight relabelling here).
 """
 
-import contextlib
 import copy
-import io
 import os
 import random
-import re
-import signal
 import sys
 import time
 from dataclasses import dataclass
@@ -55,18 +53,15 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.optim as optim
-import tyro
 from torch.distributions import Normal, kl_divergence
-from torch.utils.tensorboard import SummaryWriter
 
+from common import cli
 from common.gae import compute_gae
-from common.her import HerReplayBuffer
+from common.her import ReplayBuffer
 from common.normalizer import RunningMeanStd
 
-with contextlib.redirect_stderr(io.StringIO()):  # its import prints a notice about Adroit tasks we never use
-    import gymnasium_robotics
-gym.register_envs(gymnasium_robotics)
-torch.distributions.Distribution.set_default_validate_args(False)  # argument checks cost ~10% of a run
+cli.register_goal_tasks()
+torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
 
 
 @dataclass
@@ -84,7 +79,7 @@ class Args:
     log_dir: str = "runs"
     """parent folder of the run folders"""
     eval_freq: int = 100_000
-    """evaluate the deterministic (mean) policy every this many environment steps (0: only at the end)"""
+    """evaluate the deterministic (mean) policy every this many env steps (0: only at the end)"""
     eval_episodes: int = 10
     """episodes per evaluation"""
     torch_threads: int = 1
@@ -114,11 +109,11 @@ class Args:
     norm_adv: bool = True
     """normalise the advantages of a batch to zero mean and unit std"""
     kl_target: float = 0.02
-    """d_targ: the KL divergence per update the beta rule aims for (0.02 beat 0.01 on Hopper, measured)"""
+    """d_targ: the mean KL divergence per update the beta rule aims for"""
     beta_init: float = 1.0
     """initial KL penalty coefficient beta (the PPO paper: insensitive)"""
     kl_early_stop: float | None = None
-    """stop the epochs of an update once the mean KL exceeds this many times kl_target (None: never)"""
+    """stop an update's epochs once the mean KL exceeds this many times kl_target (None: never)"""
     init_log_std: float = -0.5
     """initial log std of the Gaussian policy"""
     vf_coef: float = 0.5
@@ -132,9 +127,9 @@ class Args:
 
     # Q-Prop arguments
     eta_mode: Literal["conservative", "aggressive", "ones", "none"] = "conservative"
-    """control-variate weight eta: sign test per sample (conservative/aggressive), 1, or none (= PPO-KL)"""
+    """control-variate weight eta: per-sample sign test (conservative, aggressive), 1, or none"""
     normalization: Literal["paper", "unbiased"] = "unbiased"
-    """normalise the learning signal only (paper, biased) or rescale the analytic term with it (unbiased)"""
+    """normalise the learning signal only (paper, biased) or the analytic term with it (unbiased)"""
     buffer_size: int = 1_000_000
     """replay buffer capacity in transitions"""
     critic_learning_rate: float = 1e-3
@@ -148,7 +143,7 @@ class Args:
     tau: float = 0.005
     """soft target update rate of eq. 6 (after every critic step)"""
     learning_starts: int = 1000
-    """environment steps of warm-up before the first critic step; the control variate starts with it"""
+    """environment steps before the first critic step; the control variate starts with it"""
 
     # to be filled in runtime
     batch_size: int = 0
@@ -159,61 +154,24 @@ class Args:
     """the number of iterations (computed in runtime)"""
 
 
-def fail(message: str) -> None:
-    """Bad input: one clear line, no traceback, non-zero exit."""
-    print(f"error: {message}", file=sys.stderr)
-    sys.exit(2)
-
-
-def parse_args() -> Args:
-    """``tyro.cli``, with a parse error reported as one line (tyro draws a box)."""
-    captured = io.StringIO()
-    try:
-        with contextlib.redirect_stderr(captured):
-            return tyro.cli(Args)
-    except SystemExit as e:
-        if e.code:
-            fail(" ".join(re.sub(r"[│╭╮╰╯─]", " ", captured.getvalue()).split()))
-        raise
-
-
 def check_args(args: Args) -> None:
-    if args.env_id not in gym.registry:
-        fail(f"unknown --env-id {args.env_id!r}; use a registered gymnasium id such as Hopper-v5 or FetchReach-v4")
-    for name in ("total_timesteps", "num_envs", "num_steps", "num_minibatches", "update_epochs", "eval_episodes"):
-        if getattr(args, name) <= 0:
-            fail(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
-    if args.total_timesteps < args.batch_size:
-        fail(f"--total-timesteps {args.total_timesteps} is less than one batch (num_envs * num_steps = {args.batch_size})")
-    if args.batch_size % args.num_minibatches:
-        fail(f"batch {args.batch_size} (num_envs * num_steps) does not split into {args.num_minibatches} minibatches; change --num-minibatches")
-    if args.capture_video:
-        try:
-            import moviepy  # noqa: F401
-
-            env = gym.make(args.env_id, render_mode="rgb_array")
-            env.reset(seed=0)
-            env.render()
-            env.close()
-        except ImportError:
-            fail("--capture-video needs moviepy: pip install moviepy")
-        except Exception as e:
-            fail(f"--capture-video: rendering {args.env_id} failed ({type(e).__name__}); MuJoCo needs an OpenGL backend, e.g. apt install libosmesa6 and MUJOCO_GL=osmesa")
-    if not 0 < args.gamma <= 1 or not 0 <= args.gae_lambda <= 1:
-        fail("--gamma must be in (0, 1] and --gae-lambda in [0, 1]")
-    if args.kl_target <= 0 or args.beta_init < 0:
-        fail("--kl-target must be positive and --beta-init non-negative")
+    """The checks every script shares (``common/cli.py``), then the critic's."""
+    cli.check_common(args)
+    cli.check_positive(args, "critic_batch_size", "buffer_size")
     if not 0.0 < args.tau <= 1.0:
-        fail(f"--tau must be in (0, 1], got {args.tau}")
-    if args.critic_steps < 0 or args.learning_starts < 0 or args.critic_batch_size <= 0 or args.buffer_size <= 0:
-        fail("--critic-steps and --learning-starts must be non-negative, --critic-batch-size and --buffer-size positive")
+        cli.fail(f"--tau must be in (0, 1], got {args.tau}")
+    if args.critic_steps < 0 or args.learning_starts < 0:
+        cli.fail("--critic-steps and --learning-starts must be non-negative")
 
 
+# ENV SETUP
 def make_env(env_id: str, video_dir: str | None = None):
     def thunk():
         env = gym.make(env_id, render_mode="rgb_array" if video_dir else None)
         if video_dir:
-            env = gym.wrappers.RecordVideo(env, video_dir, episode_trigger=lambda e: True, disable_logger=True)
+            env = gym.wrappers.RecordVideo(
+                env, video_dir, episode_trigger=lambda e: True, disable_logger=True
+            )
         if isinstance(env.observation_space, gym.spaces.Dict):  # goal task: one flat policy input
             env = gym.wrappers.FlattenObservation(env)  # [achieved_goal, desired_goal, observation]
         return gym.wrappers.RecordEpisodeStatistics(env)
@@ -221,6 +179,7 @@ def make_env(env_id: str, video_dir: str | None = None):
     return thunk
 
 
+# ALGO LOGIC: networks
 def layer_init(layer: nn.Linear, std: float = np.sqrt(2), bias_const: float = 0.0) -> nn.Linear:
     torch.nn.init.orthogonal_(layer.weight, std)
     torch.nn.init.constant_(layer.bias, bias_const)
@@ -228,7 +187,7 @@ def layer_init(layer: nn.Linear, std: float = np.sqrt(2), bias_const: float = 0.
 
 
 class Agent(nn.Module):
-    """Gaussian policy pi_theta(a|s) = N(mu_theta(s), diag(exp(log_std))^2) and baseline V_phi(s)."""
+    """Gaussian policy pi_theta(a|s) = N(mu_theta(s), diag(exp(log_std))^2), baseline V_phi(s)."""
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: int = 64, init_log_std: float = 0.0):
         super().__init__()
@@ -242,7 +201,8 @@ class Agent(nn.Module):
             layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
             layer_init(nn.Linear(hidden, act_dim), std=0.01),
         )  # fmt: skip
-        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))  # state-independent log std
+        # state-independent log std
+        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))
 
     def get_value(self, x: torch.Tensor) -> torch.Tensor:
         return self.critic(x).squeeze(-1)
@@ -266,113 +226,18 @@ class QNetwork(nn.Module):
         return self.out(torch.relu(self.fc2(torch.cat([h, a], -1)))).squeeze(-1)
 
 
-# ALGO LOGIC: the critic step (eq. 6-7)
-def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent, d: dict, gamma: float, tau: float) -> tuple[float, float]:
-    """One step of TD learning on a replay batch ``d``, then the soft target update of eq. 6."""
-    with torch.no_grad():
-        next_q = qf_target(d["next_obs"], agent.actor_mean(d["next_obs"]))  # Q_w'(s', mu_theta(s'))
-        target = d["rewards"] + gamma * (1.0 - d["terminations"]) * next_q
-    q = qf(d["obs"], d["actions"])
-    loss = 0.5 * ((q - target) ** 2).mean()
-    q_optimizer.zero_grad()
-    loss.backward()
-    q_optimizer.step()
-    with torch.no_grad():
-        for p, p_target in zip(qf.parameters(), qf_target.parameters()):
-            p_target.lerp_(p, tau)  # theta' <- tau theta + (1 - tau) theta'   (eq. 6)
-    return loss.item(), q.mean().item()
-
-
-# ALGO LOGIC: the control variate (eq. 9) and its weight eta
-def control_variate(qf: QNetwork, agent: Agent, obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
-    """A_bar(s, a) = grad_a Q_w(s, a)|_{a = mu(s)} . (a - mu(s))   (eq. 9), no gradient to theta."""
-    with torch.no_grad():
-        mu = agent.actor_mean(obs)
-    mu.requires_grad_(True)
-    (grad_q,) = torch.autograd.grad(qf(obs, mu).sum(), mu)
-    return (grad_q * (actions - mu)).sum(-1).detach()
-
-
-def compute_eta(advantages: torch.Tensor, cv: torch.Tensor, mode: str) -> torch.Tensor:
-    """Per-sample eta_t from the sign of A_hat_t * A_bar_t, a sample estimate of Cov(A_hat, A_bar)."""
-    if mode == "conservative":
-        return (advantages * cv > 0).float()  # use the control variate only where it correlates
-    if mode == "aggressive":
-        return torch.sign(advantages * cv)  # flip it where it anti-correlates
-    return torch.full_like(advantages, 1.0 if mode == "ones" else 0.0)
-
-
-def qprop_surrogate(agent: Agent, qf: QNetwork, pi: Normal, obs, actions, logprobs_old, signal, eta, analytic_scale: float = 1.0) -> torch.Tensor:
-    """The Q-Prop objective as a loss (eq. 8): -E[r_t (A_hat - eta A_bar)] - analytic_scale E[eta Q_w(s, mu_theta(s))].
-
-    ``signal`` is the (possibly normalised) A_hat - eta A_bar. At theta = theta_old the gradient of
-    the first term is -E[grad log pi * signal], the second the deterministic policy gradient (eq. 7).
-    """
-    ratio = (pi.log_prob(actions).sum(-1) - logprobs_old).exp()  # r_t(theta), pi = agent.dist(obs)
-    loss = -(ratio * signal).mean()
-    if torch.any(eta != 0):
-        loss = loss - analytic_scale * (eta * qf(obs, agent.actor_mean(obs))).mean()  # analytic term of eq. 8
-    return loss
-
-
-# ALGO LOGIC: the Q-Prop update: PPO-KL (eq. 5) with the control variate (eq. 8)
-def qprop_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args, qf: QNetwork | None = None) -> tuple[float, dict]:
-    """``update_epochs`` passes of minibatch Adam on the Q-Prop loss with the KL penalty, then the beta rule.
-
-    ``b`` is the batch of ``ppo_kl.ppo_kl_update``, with ``cv`` (A_bar) and ``eta`` when a critic is
-    in use. Without a critic, or with eta = 0 everywhere, this is exactly ``ppo_kl.ppo_kl_update``.
-    """
-    batch_size = b["obs"].shape[0]
-    minibatch_size = batch_size // args.num_minibatches
-    use_cv = qf is not None and args.eta_mode != "none"
-    eta = b["eta"] if use_cv else torch.zeros_like(b["advantages"])
-    signal = b["advantages"] - eta * b["cv"] if use_cv else b["advantages"]  # A_hat - eta A_bar, on the raw scale
-    analytic_scale, signal_std = 1.0, signal.std()
-    if args.norm_adv:
-        signal = (signal - signal.mean()) / (signal_std + 1e-8)
-        if args.normalization == "unbiased":
-            analytic_scale = 1.0 / (signal_std.item() + 1e-8)  # same 1/sigma on both terms of eq. 8
-    pi_old = Normal(b["mean"], b["std"])
-    epochs_run = 0
-    for epoch in range(args.update_epochs):
-        perm = torch.randperm(batch_size)
-        for start in range(0, batch_size, minibatch_size):
-            mb = perm[start : start + minibatch_size]
-            pi = agent.dist(b["obs"][mb])
-            surrogate = qprop_surrogate(agent, qf, pi, b["obs"][mb], b["actions"][mb], b["logprobs"][mb], signal[mb], eta[mb], analytic_scale)
-            kl = kl_divergence(Normal(b["mean"][mb], b["std"][mb]), pi).sum(-1).mean()  # analytic Gaussian KL
-            pg_loss = surrogate + beta * kl  # eq. 8 inside eq. 5, negated
-            v_loss = 0.5 * ((agent.get_value(b["obs"][mb]) - b["returns"][mb]) ** 2).mean()
-            loss = pg_loss + args.vf_coef * v_loss
-            optimizer.zero_grad()
-            loss.backward()
-            nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
-            optimizer.step()
-        epochs_run = epoch + 1
-        if args.kl_early_stop is not None:
-            with torch.no_grad():
-                d = kl_divergence(pi_old, agent.dist(b["obs"])).sum(-1).mean().item()
-            if d > args.kl_early_stop * args.kl_target:
-                break
-    with torch.no_grad():
-        pi = agent.dist(b["obs"])
-        d = kl_divergence(pi_old, pi).sum(-1).mean().item()  # d: mean KL[pi_old || pi_new] of the update
-        entropy = pi.entropy().sum(-1).mean().item()
-    stats = {"policy_loss": pg_loss.item(), "value_loss": v_loss.item(), "approx_kl": d, "beta": beta,
-             "epochs": epochs_run, "entropy": entropy, "signal_std": signal_std.item()}  # fmt: skip
-    if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
-        beta /= 2
-    elif d > args.kl_target * 1.5:
-        beta *= 2
-    return beta, stats
-
-
 # ALGO LOGIC: rollout with the current policy
-def collect_rollout(envs, agent: Agent, obs_rms: RunningMeanStd, raw_obs: np.ndarray, num_steps: int, update_obs_rms: bool = True, rb: HerReplayBuffer | None = None):
-    """Step the vector env ``num_steps`` times with actions sampled from pi_theta.
-
-    As ``ppo_kl.collect_rollout``; besides, every transition goes raw into the replay buffer ``rb``
-    with its true next observation (the final one where the episode ended).
+def collect_rollout(
+    envs,
+    agent: Agent,
+    obs_rms: RunningMeanStd,
+    raw_obs: np.ndarray,
+    num_steps: int,
+    rb: ReplayBuffer,
+    update_obs_rms: bool = True,
+):
+    """Step the vector env ``num_steps`` times with actions sampled from pi_theta; every
+    transition also goes raw into the replay buffer ``rb``, with its real next observation.
 
     Returns ``(rollout, raw_obs, episodes)``: ``rollout`` holds time-major ``(T, N, ...)`` tensors
     ``obs`` (normalised, as the policy saw them), ``actions``, ``rewards`` (raw), ``terminations``,
@@ -393,26 +258,37 @@ def collect_rollout(envs, agent: Agent, obs_rms: RunningMeanStd, raw_obs: np.nda
         ro["obs"][t] = torch.as_tensor(obs_rms.normalize(raw_obs))
         with torch.no_grad():
             ro["actions"][t] = agent.dist(ro["obs"][t]).sample()
-        prev_obs = raw_obs
-        raw_obs, reward, terminated, truncated, infos = envs.step(np.clip(ro["actions"][t].numpy(), low, high))
+        action = ro["actions"][t].numpy()
+        next_raw_obs, reward, terminated, truncated, infos = envs.step(np.clip(action, low, high))
         ended = terminated | truncated
         ro["rewards"][t] = torch.as_tensor(reward)
         ro["terminations"][t] = torch.as_tensor(terminated)
         ro["episode_ends"][t] = torch.as_tensor(ended)
-        true_next = raw_obs.copy()
-        for i in np.flatnonzero(ended):  # SAME_STEP autoreset: raw_obs[i] is already the next episode's first
-            true_next[i] = infos["final_obs"][i]
+        real_next_obs = next_raw_obs.copy()
+        # SAME_STEP autoreset: where an episode ended, next_raw_obs[i] is the next one's first
+        for i in np.flatnonzero(ended):
+            real_next_obs[i] = infos["final_obs"][i]
             ro["final_obs"][t, i] = torch.as_tensor(obs_rms.normalize(infos["final_obs"][i]))
             info = infos["final_info"]
             success = float(info["is_success"][i]) if "is_success" in info else None
-            episodes.append((t, i, float(info["episode"]["r"][i]), int(info["episode"]["l"][i]), success))
-        if rb is not None:
-            rb.add(prev_obs, ro["actions"][t].numpy(), reward, true_next, terminated, truncated)
+            episode_return, length = float(info["episode"]["r"][i]), int(info["episode"]["l"][i])
+            episodes.append((t, i, episode_return, length, success))
+        rb.add(
+            obs=raw_obs, actions=action, rewards=reward, next_obs=real_next_obs,
+            terminations=terminated, truncations=truncated,
+        )  # fmt: skip
+        raw_obs = next_raw_obs
     return ro, raw_obs, episodes
 
 
-def scale_rewards(rewards: torch.Tensor, episode_ends: torch.Tensor, ret_rms: RunningMeanStd, running_return: np.ndarray, gamma: float) -> torch.Tensor:
-    """Divide rewards by the running std of the discounted return (CleanRL's NormalizeReward, per batch).
+def scale_rewards(
+    rewards: torch.Tensor,
+    episode_ends: torch.Tensor,
+    ret_rms: RunningMeanStd,
+    running_return: np.ndarray,
+    gamma: float,
+) -> torch.Tensor:
+    """Divide rewards by the running std of the discounted return (CleanRL's NormalizeReward).
 
     ``running_return`` (one per env) carries the discounted return across batches; it is reset
     where an episode ends. The statistics are updated with this batch before scaling.
@@ -427,7 +303,9 @@ def scale_rewards(rewards: torch.Tensor, episode_ends: torch.Tensor, ret_rms: Ru
 
 
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
-def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae_lambda: float) -> dict:
+def make_batch(
+    agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae_lambda: float
+) -> dict:
     """GAE advantages and the pi_old statistics of a rollout, flattened into one batch.
 
     V(s_{t+1}) is the next row's value within an episode, V(final_obs) where the episode ended at
@@ -436,8 +314,13 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
     with torch.no_grad():
         values = agent.get_value(ro["obs"])
         next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
-        next_values = torch.where(ro["episode_ends"].bool(), agent.get_value(ro["final_obs"]), next_values)
-        advantages = compute_gae(ro["rewards"], values, next_values, ro["terminations"], ro["episode_ends"], gamma, gae_lambda)
+        next_values = torch.where(
+            ro["episode_ends"].bool(), agent.get_value(ro["final_obs"]), next_values
+        )
+        advantages = compute_gae(
+            ro["rewards"], values, next_values, ro["terminations"], ro["episode_ends"],
+            gamma=gamma, gae_lambda=gae_lambda,
+        )  # fmt: skip
         pi_old = agent.dist(ro["obs"])
         act_dim = ro["actions"].shape[-1]
         return {
@@ -452,20 +335,175 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
         }
 
 
-def sample_replay(rb: HerReplayBuffer, obs_rms: RunningMeanStd, reward_scale: float, batch_size: int) -> dict:
-    """A replay batch, inputs normalised and rewards scaled with the current statistics."""
-    s = rb.sample(batch_size)
+def sample_replay(
+    rb: ReplayBuffer, obs_rms: RunningMeanStd, reward_scale: float, batch_size: int
+) -> dict:
+    """A replay batch as tensors, inputs normalised and rewards scaled by the current statistics."""
+    data = rb.sample(batch_size)
     return {
-        "obs": torch.as_tensor(obs_rms.normalize(s["obs"])), "next_obs": torch.as_tensor(obs_rms.normalize(s["next_obs"])),
-        "actions": torch.as_tensor(s["action"]), "rewards": torch.as_tensor(s["reward"] * reward_scale),
-        "terminations": torch.as_tensor(s["terminated"]),
-    }  # fmt: skip
+        "obs": torch.as_tensor(obs_rms.normalize(data["obs"])),
+        "next_obs": torch.as_tensor(obs_rms.normalize(data["next_obs"])),
+        "actions": torch.as_tensor(data["actions"]),
+        "rewards": torch.as_tensor(data["rewards"] * reward_scale),
+        "terminations": torch.as_tensor(data["terminations"]),
+    }
 
 
-def evaluate(agent: Agent, obs_rms: RunningMeanStd, env_id: str, episodes: int, seed: int, video_dir: str | None = None):
+# ALGO LOGIC: the critic step (eq. 6-7)
+def critic_step(
+    qf: QNetwork,
+    qf_target: QNetwork,
+    q_optimizer: optim.Optimizer,
+    agent: Agent,
+    data: dict,
+    gamma: float,
+    tau: float,
+) -> tuple[float, float]:
+    """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
+    with torch.no_grad():
+        next_q = qf_target(data["next_obs"], agent.actor_mean(data["next_obs"]))  # Q_w'(s', mu(s'))
+        target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q
+    q = qf(data["obs"], data["actions"])
+    loss = 0.5 * ((q - target) ** 2).mean()
+    q_optimizer.zero_grad()
+    loss.backward()
+    q_optimizer.step()
+    with torch.no_grad():
+        for p, p_target in zip(qf.parameters(), qf_target.parameters(), strict=True):
+            p_target.lerp_(p, tau)  # w' <- tau w + (1 - tau) w'   (eq. 6)
+    return loss.item(), q.mean().item()
+
+
+# ALGO LOGIC: the control variate (eq. 9) and its weight eta
+def control_variate(
+    qf: QNetwork, agent: Agent, obs: torch.Tensor, actions: torch.Tensor
+) -> torch.Tensor:
+    """A_bar(s, a) = grad_a Q_w(s, a)|_{a = mu(s)} . (a - mu(s))   (eq. 9), no gradient to theta."""
+    with torch.no_grad():
+        mu = agent.actor_mean(obs)
+    mu.requires_grad_(True)
+    (grad_q,) = torch.autograd.grad(qf(obs, mu).sum(), mu)
+    return (grad_q * (actions - mu)).sum(-1).detach()
+
+
+def compute_eta(advantages: torch.Tensor, cv: torch.Tensor, mode: str) -> torch.Tensor:
+    """Per-sample eta_t from the sign of A_hat_t * A_bar_t, a one-sample estimate of their
+    covariance."""
+    if mode == "conservative":
+        return (advantages * cv > 0).float()  # use the control variate only where it correlates
+    if mode == "aggressive":
+        return torch.sign(advantages * cv)  # flip it where it anti-correlates
+    return torch.full_like(advantages, 1.0 if mode == "ones" else 0.0)
+
+
+def qprop_surrogate(
+    agent: Agent,
+    qf: QNetwork,
+    pi: Normal,
+    obs: torch.Tensor,
+    actions: torch.Tensor,
+    logprobs_old: torch.Tensor,
+    learning_signal: torch.Tensor,
+    eta: torch.Tensor,
+    analytic_scale: float = 1.0,
+) -> torch.Tensor:
+    """The Q-Prop objective of eq. 8 as a loss:
+
+        -E[r_t (A_hat - eta A_bar)] - analytic_scale E[eta Q_w(s, mu_theta(s))]
+
+    ``learning_signal`` is the (possibly normalised) A_hat - eta A_bar and ``pi`` is
+    ``agent.dist(obs)``. At theta = theta_old the gradient of the first term is
+    -E[grad log pi * learning_signal], that of the second the deterministic policy gradient
+    (eq. 7).
+    """
+    ratio = (pi.log_prob(actions).sum(-1) - logprobs_old).exp()  # r_t(theta)
+    loss = -(ratio * learning_signal).mean()
+    if torch.any(eta != 0):  # the analytic term of eq. 8
+        loss = loss - analytic_scale * (eta * qf(obs, agent.actor_mean(obs))).mean()
+    return loss
+
+
+# ALGO LOGIC: the Q-Prop update: PPO-KL (eq. 5) with the control variate (eq. 8)
+def qprop_update(
+    agent: Agent,
+    optimizer: optim.Optimizer,
+    b: dict,
+    beta: float,
+    args: Args,
+    qf: QNetwork | None = None,
+) -> tuple[float, dict]:
+    """``update_epochs`` passes of minibatch Adam on the Q-Prop loss with the KL penalty, then
+    the beta rule.
+
+    ``b`` is ``ppo_kl.ppo_kl_update``'s batch, with ``cv`` (A_bar) and ``eta`` when a critic is
+    in use. Without a critic, or with eta = 0 everywhere, this is exactly ``ppo_kl_update``.
+    Returns the new beta and the statistics to log.
+    """
+    batch_size = b["obs"].shape[0]
+    minibatch_size = batch_size // args.num_minibatches
+    use_cv = qf is not None and args.eta_mode != "none"
+    eta = b["eta"] if use_cv else torch.zeros_like(b["advantages"])
+    # A_hat - eta A_bar, on the raw scale
+    learning_signal = b["advantages"] - eta * b["cv"] if use_cv else b["advantages"]
+    analytic_scale, signal_std = 1.0, learning_signal.std()
+    if args.norm_adv:
+        learning_signal = (learning_signal - learning_signal.mean()) / (signal_std + 1e-8)
+        if args.normalization == "unbiased":
+            analytic_scale = 1.0 / (signal_std.item() + 1e-8)  # the same 1/sigma on both terms
+    pi_old = Normal(b["mean"], b["std"])
+    epochs_run = 0
+    for epoch in range(args.update_epochs):
+        perm = torch.randperm(batch_size)
+        for start in range(0, batch_size, minibatch_size):
+            mb = perm[start : start + minibatch_size]
+            pi = agent.dist(b["obs"][mb])
+            surrogate = qprop_surrogate(
+                agent, qf, pi, obs=b["obs"][mb], actions=b["actions"][mb],
+                logprobs_old=b["logprobs"][mb], learning_signal=learning_signal[mb],
+                eta=eta[mb], analytic_scale=analytic_scale,
+            )  # fmt: skip
+            pi_old_mb = Normal(b["mean"][mb], b["std"][mb])
+            kl = kl_divergence(pi_old_mb, pi).sum(-1).mean()  # analytic Gaussian KL
+            pg_loss = surrogate + beta * kl  # eq. 8 inside eq. 5, negated
+            v_loss = 0.5 * ((agent.get_value(b["obs"][mb]) - b["returns"][mb]) ** 2).mean()
+            loss = pg_loss + args.vf_coef * v_loss
+            optimizer.zero_grad()
+            loss.backward()
+            nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+            optimizer.step()
+        epochs_run = epoch + 1
+        if args.kl_early_stop is not None:
+            with torch.no_grad():
+                d = kl_divergence(pi_old, agent.dist(b["obs"])).sum(-1).mean().item()
+            if d > args.kl_early_stop * args.kl_target:
+                break
+    with torch.no_grad():
+        pi = agent.dist(b["obs"])
+        d = (
+            kl_divergence(pi_old, pi).sum(-1).mean().item()
+        )  # d: mean KL[pi_old || pi] of the update
+        entropy = pi.entropy().sum(-1).mean().item()
+    stats = {"policy_loss": pg_loss.item(), "value_loss": v_loss.item(), "approx_kl": d,
+             "beta": beta, "epochs": epochs_run, "entropy": entropy,
+             "signal_std": signal_std.item()}  # fmt: skip
+    if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
+        beta /= 2
+    elif d > args.kl_target * 1.5:
+        beta *= 2
+    return beta, stats
+
+
+def evaluate(
+    agent: Agent,
+    obs_rms: RunningMeanStd,
+    env_id: str,
+    episodes: int,
+    seed: int,
+    video_dir: str | None = None,
+):
     """Run the deterministic policy a = mu_theta(s) with frozen normaliser statistics.
 
-    Returns the episodic returns and, on goal tasks, the successes (``is_success`` at the last step).
+    Returns the episodic returns and, on goal tasks, the successes (``is_success`` at the end).
     """
     env = make_env(env_id, video_dir)()
     returns, successes = [], []
@@ -475,7 +513,9 @@ def evaluate(agent: Agent, obs_rms: RunningMeanStd, env_id: str, episodes: int, 
         while not done:
             with torch.no_grad():
                 action = agent.actor_mean(torch.as_tensor(obs_rms.normalize(obs)[None])).numpy()[0]
-            obs, _, terminated, truncated, info = env.step(np.clip(action, env.action_space.low, env.action_space.high))
+            obs, _, terminated, truncated, info = env.step(
+                np.clip(action, env.action_space.low, env.action_space.high)
+            )
             done = terminated or truncated
         returns.append(info["episode"]["r"])
         if "is_success" in info:
@@ -485,19 +525,12 @@ def evaluate(agent: Agent, obs_rms: RunningMeanStd, env_id: str, episodes: int, 
 
 
 if __name__ == "__main__":
-    args = parse_args()
-    args.batch_size = args.num_envs * args.num_steps
-    args.minibatch_size = args.batch_size // max(args.num_minibatches, 1)
-    args.num_iterations = args.total_timesteps // max(args.batch_size, 1)
+    args = cli.parse_args(Args)
     check_args(args)
-    run_name = f"{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}"
-    run_dir = os.path.join(args.log_dir, run_name)
-    writer = SummaryWriter(run_dir)
-    signal.signal(signal.SIGTERM, signal.default_int_handler)  # `kill` ends a run cleanly, as Ctrl-C does
-    writer.add_text(
-        "hyperparameters",
-        "|param|value|\n|-|-|\n%s" % ("\n".join([f"|{key}|{value}|" for key, value in vars(args).items()])),
-    )
+    args.batch_size = args.num_envs * args.num_steps
+    args.minibatch_size = args.batch_size // args.num_minibatches
+    args.num_iterations = args.total_timesteps // args.batch_size
+    run_dir, writer = cli.start_run(args)
 
     # TRY NOT TO MODIFY: seeding
     random.seed(args.seed)
@@ -506,25 +539,29 @@ if __name__ == "__main__":
     torch.backends.cudnn.deterministic = args.torch_deterministic
     torch.set_num_threads(args.torch_threads)
 
-    # env setup
+    # ENV SETUP
     envs = gym.vector.SyncVectorEnv(
-        [make_env(args.env_id) for _ in range(args.num_envs)], autoreset_mode=gym.vector.AutoresetMode.SAME_STEP
+        [make_env(args.env_id) for _ in range(args.num_envs)],
+        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
     )
     assert envs.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
-    assert isinstance(envs.single_action_space, gym.spaces.Box), "only continuous action spaces are supported"
-    obs_dim, act_dim = envs.single_observation_space.shape[0], envs.single_action_space.shape[0]
+    assert isinstance(envs.single_action_space, gym.spaces.Box), "only continuous actions"
+    obs_dim = envs.single_observation_space.shape[0]
+    act_dim = envs.single_action_space.shape[0]
     envs.single_action_space.seed(args.seed)
 
+    # ALGO LOGIC: networks, optimisers, normalisers, replay
     agent = Agent(obs_dim, act_dim, init_log_std=args.init_log_std)
     optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
     obs_rms = RunningMeanStd((obs_dim,))
     qf = QNetwork(obs_dim, act_dim, args.critic_hidden)
     qf_target = copy.deepcopy(qf)
     q_optimizer = optim.Adam(qf.parameters(), lr=args.critic_learning_rate, fused=True)
-    rb = HerReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, n_sampled_goal=0, seed=args.seed)  # plain episode replay
-    ret_rms, running_return = RunningMeanStd(()), np.zeros(args.num_envs)  # for reward scaling
+    rb = ReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, seed=args.seed)
+    ret_rms, running_return = RunningMeanStd(()), np.zeros(args.num_envs)  # reward scaling
     beta = args.beta_init
 
+    # TRY NOT TO MODIFY: start the game
     global_step, train_time, last_eval, exit_code = 0, 0.0, 0, 0
     recent_success = []  # is_success of the last 100 training episodes (goal tasks)
     raw_obs, _ = envs.reset(seed=args.seed)
@@ -532,9 +569,15 @@ if __name__ == "__main__":
         for iteration in range(1, args.num_iterations + 1):
             t0 = time.time()
             if args.anneal_lr:
-                optimizer.param_groups[0]["lr"] = (1.0 - (iteration - 1.0) / args.num_iterations) * args.learning_rate
+                frac = 1.0 - (iteration - 1.0) / args.num_iterations
+                optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
-            ro, raw_obs, episodes = collect_rollout(envs, agent, obs_rms, raw_obs, args.num_steps, args.norm_obs, rb)
+            # ALGO LOGIC: rollout
+            ro, raw_obs, episodes = collect_rollout(
+                envs, agent, obs_rms, raw_obs, args.num_steps, rb, update_obs_rms=args.norm_obs
+            )
+
+            # TRY NOT TO MODIFY: record rewards for plotting purposes
             for t, _, episodic_return, length, success in episodes:
                 step = global_step + (t + 1) * args.num_envs
                 writer.add_scalar("charts/episodic_return", episodic_return, step)
@@ -543,31 +586,50 @@ if __name__ == "__main__":
                     recent_success = (recent_success + [success])[-100:]
                     writer.add_scalar("charts/success_rate", np.mean(recent_success), step)
             global_step += args.batch_size
+
+            # ALGO LOGIC: one reward scale for GAE and the critic
+            reward_scale = 1.0
             if args.norm_reward:
-                ro["rewards"] = scale_rewards(ro["rewards"], ro["episode_ends"], ret_rms, running_return, args.gamma)
+                ro["rewards"] = scale_rewards(
+                    ro["rewards"], ro["episode_ends"], ret_rms, running_return, args.gamma
+                )
+                reward_scale = float(1.0 / np.sqrt(ret_rms.var + 1e-8))
 
-            reward_scale = float(1.0 / np.sqrt(ret_rms.var + 1e-8)) if args.norm_reward else 1.0
-
-            # ALGO LOGIC: critic first (Algorithm 1 of Q-Prop), then A_bar and eta with the trained critic
-            learning = global_step >= args.learning_starts and args.eta_mode != "none" and rb.num_sampleable() > 0
+            # ALGO LOGIC: the critic first (eq. 6-7; Algorithm 1 of Q-Prop), so that A_bar, eta
+            # and the analytic term use the trained critic
+            learning = (
+                global_step >= args.learning_starts
+                and args.eta_mode != "none"
+                and rb.num_sampleable() > 0
+            )
             if learning and args.critic_steps > 0:
                 for _ in range(args.critic_steps):
-                    d = sample_replay(rb, obs_rms, reward_scale, args.critic_batch_size)
-                    critic_loss, q_values = critic_step(qf, qf_target, q_optimizer, agent, d, args.gamma, args.tau)
+                    data = sample_replay(rb, obs_rms, reward_scale, args.critic_batch_size)
+                    critic_loss, q_values = critic_step(
+                        qf, qf_target, q_optimizer, agent, data, gamma=args.gamma, tau=args.tau
+                    )
                 writer.add_scalar("losses/critic_loss", critic_loss, global_step)
                 writer.add_scalar("losses/q_values", q_values, global_step)
 
-            b = make_batch(agent, ro, torch.as_tensor(obs_rms.normalize(raw_obs)), args.gamma, args.gae_lambda)
+            # ALGO LOGIC: advantages (eq. 3-4), the control variate (eq. 9) and eta
+            last_obs = torch.as_tensor(obs_rms.normalize(raw_obs))
+            b = make_batch(agent, ro, last_obs, args.gamma, args.gae_lambda)
             if learning:
                 b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
                 b["eta"] = compute_eta(b["advantages"], b["cv"], args.eta_mode)
                 writer.add_scalar("qprop/eta", b["eta"].mean().item(), global_step)
-                writer.add_scalar("qprop/cov", (b["advantages"] * b["cv"]).mean().item(), global_step)
+                cov = (b["advantages"] * b["cv"]).mean().item()
+                writer.add_scalar("qprop/cov", cov, global_step)
+
+            # ALGO LOGIC: the Q-Prop update (eq. 8 inside eq. 5)
             beta, stats = qprop_update(agent, optimizer, b, beta, args, qf if learning else None)
             if not all(np.isfinite(v) for v in stats.values()):
-                raise FloatingPointError(f"a loss became NaN or infinite at global step {global_step}: {stats}")
+                raise FloatingPointError(
+                    f"a loss became NaN or infinite at global step {global_step}: {stats}"
+                )
             train_time += time.time() - t0
 
+            # TRY NOT TO MODIFY: record losses for plotting purposes
             writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
             writer.add_scalar("charts/policy_entropy", stats["entropy"], global_step)
             writer.add_scalar("charts/SPS", int(global_step / train_time), global_step)
@@ -575,16 +637,24 @@ if __name__ == "__main__":
                 writer.add_scalar(f"losses/{key}", stats[key], global_step)
             writer.add_scalar("qprop/signal_std", stats["signal_std"], global_step)
 
-            if iteration == args.num_iterations or (args.eval_freq > 0 and global_step - last_eval >= args.eval_freq):
+            # TRY NOT TO MODIFY: evaluate the deterministic policy
+            due = args.eval_freq > 0 and global_step - last_eval >= args.eval_freq
+            if iteration == args.num_iterations or due:
                 last_eval = global_step
                 video_dir = os.path.join(run_dir, "videos") if args.capture_video else None
-                eval_returns, eval_success = evaluate(agent, obs_rms, args.env_id, args.eval_episodes, args.seed + 10_000, video_dir)
+                eval_returns, eval_success = evaluate(
+                    agent, obs_rms, args.env_id, args.eval_episodes, args.seed + 10_000, video_dir
+                )
                 writer.add_scalar("eval/episodic_return", eval_returns.mean(), global_step)
+                message = f"step={global_step} eval_return={eval_returns.mean():.1f}"
                 if len(eval_success):
                     writer.add_scalar("eval/success_rate", eval_success.mean(), global_step)
-                print(f"step={global_step} eval_return={eval_returns.mean():.1f} SPS={int(global_step / train_time)}", flush=True)
+                    message += f" eval_success={eval_success.mean():.2f}"
+                print(f"{message} SPS={int(global_step / train_time)}", flush=True)
     except KeyboardInterrupt:
-        print(f"interrupted at global step {global_step}; logs are kept in {run_dir}", file=sys.stderr)
+        print(
+            f"interrupted at global step {global_step}; logs are kept in {run_dir}", file=sys.stderr
+        )
         exit_code = 130
     except FloatingPointError as e:
         print(f"error: {e}", file=sys.stderr)
@@ -592,7 +662,9 @@ if __name__ == "__main__":
     finally:
         if args.save_model:
             model_path = os.path.join(run_dir, "model.pt")
-            torch.save({"agent": agent.state_dict(), "qf": qf.state_dict(), "obs_rms": obs_rms.state_dict(), "args": vars(args)}, model_path)
+            checkpoint = {"agent": agent.state_dict(), "obs_rms": obs_rms.state_dict(),
+                          "qf": qf.state_dict()}  # fmt: skip
+            torch.save({**checkpoint, "args": vars(args)}, model_path)
             print(f"model saved to {model_path}")
         envs.close()
         writer.close()

@@ -37,7 +37,7 @@ class Args:
     out_dir: str = "benchmarks/runs"
     """parent of the suite folders"""
     backend: Literal["local", "ray"] = "local"
-    """local processes, or one Ray task per run (needs `pip install ray`; a shared filesystem on a multi-node cluster)"""
+    """local processes, or one Ray task per run (needs Ray; a multi-node cluster: shared files)"""
     ray_address: str | None = None
     """address of an existing Ray cluster (None: start a local Ray instance)"""
     dry_run: bool = False
@@ -57,8 +57,9 @@ class Run:
         return f"{self.name}__{self.env_id}__seed{self.seed}"
 
     def command(self, run_dir: Path) -> list[str]:
-        return [sys.executable, str(ROOT / self.script), "--env-id", self.env_id, "--seed", str(self.seed),
-                "--exp-name", self.name, "--log-dir", str(run_dir), *self.flags]  # fmt: skip
+        return [sys.executable, str(ROOT / self.script), "--env-id", self.env_id,
+                "--seed", str(self.seed), "--exp-name", self.name, "--log-dir", str(run_dir),
+                *self.flags]  # fmt: skip
 
 
 HOPPER_STEPS, FETCH_STEPS = 1_000_000, 30_000
@@ -70,34 +71,82 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = ()) -> list[Run]:
     IPG's nu, control variate and HER settings; ``quick``: the paper's shape on tiny budgets."""
     fetch = lambda name, script, *flags: (name, script, "FetchReach-v4", flags)  # noqa: E731
     hopper = lambda name, script, *flags: (name, script, "Hopper-v5", flags)  # noqa: E731
+    fetch_eval = ("--total-timesteps", str(FETCH_STEPS), "--eval-freq", "2500")
+    fetch_eval += ("--eval-episodes", "20")
     if suite == "paper":
         seeds = seeds or (1, 2, 3, 4, 5)
         grid = [
-            hopper("ppo_kl", "ppo_kl.py"), hopper("qprop_ppo", "qprop_ppo.py"),
-            fetch("ppo_kl", "ppo_kl.py", "--total-timesteps", str(FETCH_STEPS), "--eval-freq", "2500", "--eval-episodes", "20"),
-            fetch("qprop_ppo", "qprop_ppo.py", "--total-timesteps", str(FETCH_STEPS), "--eval-freq", "2500", "--eval-episodes", "20"),
+            hopper("ppo_kl", "ppo_kl.py"),
+            hopper("qprop_ppo", "qprop_ppo.py"),
+            fetch("ppo_kl", "ppo_kl.py", *fetch_eval),
+            fetch("qprop_ppo", "qprop_ppo.py", *fetch_eval),
             fetch("ipg", "ipg_her.py", "--no-her"),
             fetch("ipg_her", "ipg_her.py"),
-        ]  # fmt: skip
+        ]
     elif suite == "ablations":
         seeds = seeds or (1, 2, 3)
-        grid = [hopper(f"qprop_{eta}_{norm}", "qprop_ppo.py", "--eta-mode", eta, "--normalization", norm)
-                for eta in ("conservative", "aggressive", "ones") for norm in ("paper", "unbiased")]  # fmt: skip
-        grid += [fetch(f"ipg_her_nu{nu}", "ipg_her.py", "--nu", str(nu)) for nu in (0.0, 0.2, 0.5, 0.8)]
-        grid += [fetch("ipg_her_cv", "ipg_her.py", "--use-cv"), fetch("ipg_her_batch_states", "ipg_her.py", "--off-policy-states", "batch")]
-        grid += [fetch(f"ipg_her_k{k}", "ipg_her.py", "--her-n-sampled-goal", str(k)) for k in (1, 8)]
-        grid += [fetch(f"ipg_her_{s}", "ipg_her.py", "--her-goal-selection-strategy", s) for s in ("final", "episode")]
+        grid = [
+            hopper(
+                f"qprop_{eta}_{norm}", "qprop_ppo.py", "--eta-mode", eta, "--normalization", norm
+            )
+            for eta in ("conservative", "aggressive", "ones")
+            for norm in ("paper", "unbiased")
+        ]
+        grid += [
+            fetch(f"ipg_her_nu{nu}", "ipg_her.py", "--nu", str(nu)) for nu in (0.0, 0.2, 0.5, 0.8)
+        ]
+        grid += [
+            fetch("ipg_her_cv", "ipg_her.py", "--use-cv"),
+            fetch("ipg_her_batch_states", "ipg_her.py", "--off-policy-states", "batch"),
+        ]
+        grid += [
+            fetch(f"ipg_her_k{k}", "ipg_her.py", "--her-n-sampled-goal", str(k)) for k in (1, 8)
+        ]
+        grid += [
+            fetch(f"ipg_her_{s}", "ipg_her.py", "--her-goal-selection-strategy", s)
+            for s in ("final", "episode")
+        ]
     else:  # quick
         seeds = seeds or (1,)
-        tiny = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4", "--update-epochs", "2", "--eval-episodes", "1")
+        tiny = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4")
+        tiny += ("--update-epochs", "2", "--eval-episodes", "1")
+        tiny_ipg = ("--total-timesteps", "300", "--critic-steps", "4", "--eval-freq", "100")
+        tiny_ipg += ("--eval-episodes", "2")
         grid = [
             hopper("ppo_kl", "ppo_kl.py", "--total-timesteps", "512", *tiny),
-            hopper("qprop_ppo", "qprop_ppo.py", "--total-timesteps", "512", "--learning-starts", "256", "--critic-steps", "4", *tiny),
-            fetch("ppo_kl", "ppo_kl.py", "--total-timesteps", "300", "--num-envs", "2", "--num-steps", "50", "--num-minibatches", "4", "--eval-episodes", "2"),
-            fetch("ipg", "ipg_her.py", "--no-her", "--total-timesteps", "300", "--critic-steps", "4", "--eval-freq", "100", "--eval-episodes", "2"),
-            fetch("ipg_her", "ipg_her.py", "--total-timesteps", "300", "--critic-steps", "4", "--eval-freq", "100", "--eval-episodes", "2"),
-        ]  # fmt: skip
-    return [Run(name, script, env_id, seed, flags) for name, script, env_id, flags in grid for seed in seeds]
+            hopper(
+                "qprop_ppo",
+                "qprop_ppo.py",
+                "--total-timesteps",
+                "512",
+                "--learning-starts",
+                "256",
+                "--critic-steps",
+                "4",
+                *tiny,
+            ),  # fmt: skip
+            fetch(
+                "ppo_kl",
+                "ppo_kl.py",
+                "--total-timesteps",
+                "300",
+                "--num-envs",
+                "2",
+                "--num-steps",
+                "50",
+                "--num-minibatches",
+                "4",
+                "--eval-episodes",
+                "2",
+            ),  # fmt: skip
+            fetch("ipg", "ipg_her.py", "--no-her", *tiny_ipg),
+            fetch("ipg_her", "ipg_her.py", *tiny_ipg),
+        ]
+    return [
+        Run(name, script, env_id, seed, flags)
+        for name, script, env_id, flags in grid
+        for seed in seeds
+    ]
 
 
 def execute(command: list[str], run_dir: str) -> int:
@@ -130,15 +179,23 @@ def main(args: Args) -> int:
         print(f"{len(todo)} to run, {skipped} already finished")
         return 0
     start, failed, done = time.time(), [], 0
-    print(f"suite {args.suite}: {len(todo)} to run, {skipped} already finished, {args.workers} workers, backend {args.backend}", flush=True)
+    print(f"suite {args.suite}: {len(todo)} to run, {skipped} already finished, "
+          f"{args.workers} workers, backend {args.backend}", flush=True)  # fmt: skip
 
     def report(run: Run, code: int) -> None:
         nonlocal done
         done += 1
         elapsed = time.time() - start
         eta = elapsed / done * (len(todo) - done)
-        status = "ok" if code == 0 else f"FAILED (exit {code}; see {suite_dir / run.folder / 'stderr.log'})"
-        print(f"[{done}/{len(todo)}] {run.folder}: {status}  elapsed {fmt(elapsed)}  ETA {fmt(eta)}", flush=True)
+        status = (
+            "ok"
+            if code == 0
+            else f"FAILED (exit {code}; see {suite_dir / run.folder / 'stderr.log'})"
+        )
+        print(
+            f"[{done}/{len(todo)}] {run.folder}: {status}  elapsed {fmt(elapsed)}  ETA {fmt(eta)}",
+            flush=True,
+        )
         if code != 0:
             failed.append(run.folder)
 
@@ -148,11 +205,14 @@ def main(args: Args) -> int:
         except ImportError:
             print("error: --backend ray needs Ray: pip install 'ray[default]'", file=sys.stderr)
             return 2
-        # workers import this module from the project folder (the same path on every node: shared filesystem)
+        # workers import this module from the project folder (the same path on every node)
         ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False,
                  runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}})  # fmt: skip
         remote = ray.remote(num_cpus=1)(execute)
-        pending = {remote.remote(r.command(suite_dir / r.folder), str(suite_dir / r.folder)): r for r in todo}
+        pending = {
+            remote.remote(r.command(suite_dir / r.folder), str(suite_dir / r.folder)): r
+            for r in todo
+        }
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
             for ref in ready:
@@ -160,10 +220,14 @@ def main(args: Args) -> int:
         ray.shutdown()
     else:
         with ThreadPoolExecutor(max_workers=max(args.workers, 1)) as pool:
-            futures = {pool.submit(execute, r.command(suite_dir / r.folder), str(suite_dir / r.folder)): r for r in todo}
+            futures = {
+                pool.submit(execute, r.command(suite_dir / r.folder), str(suite_dir / r.folder)): r
+                for r in todo
+            }
             for future in as_completed(futures):
                 report(futures[future], future.result())
-    print(f"summary: {done - len(failed)} done, {len(failed)} failed, {skipped} skipped, wall time {fmt(time.time() - start)}")
+    print(f"summary: {done - len(failed)} done, {len(failed)} failed, {skipped} skipped, "
+          f"wall time {fmt(time.time() - start)}")  # fmt: skip
     for name in failed:
         print(f"failed: {name}")
     return 1 if failed else 0

@@ -60,7 +60,9 @@ def compute_gae(
     advantages = torch.zeros_like(rewards)
     last = torch.zeros_like(rewards[0])  # A_{t+1}, zero past the end of the rollout
     for t in reversed(range(T)):
-        delta = rewards[t] + gamma * (1.0 - terminations[t]) * next_values[t] - values[t]  # TD residual
+        delta = (
+            rewards[t] + gamma * (1.0 - terminations[t]) * next_values[t] - values[t]
+        )  # TD residual
         last = delta + gamma * gae_lambda * (1.0 - episode_ends[t]) * last  # eq. 4, recursively
         advantages[t] = last
     return advantages

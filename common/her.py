@@ -1,4 +1,4 @@
-"""Episode replay buffer with Hindsight Experience Replay (paper Figure 2; Andrychowicz et al. 2017).
+"""Episode replay with Hindsight Experience Replay (paper Figure 2; Andrychowicz et al. 2017).
 
 HER turns failures into lessons. An episode that missed its goal ``g`` still shows how to reach
 the places it *did* reach: replaying a transition ``(s_t || g', a_t, r', s_{t+1} || g')`` with a
@@ -22,8 +22,9 @@ once and lets the relabelled share be exact:
 * ``terminated`` is stored as the environment reported it. FetchReach never terminates: its
   time-limit ends are truncations, which keep bootstrapping (the critic's target uses s_{t+1}).
 
-With ``n_sampled_goal = 0`` it is a plain episode replay buffer, also for tasks without goals
-(``goal_dim = 0``).
+``ReplayBuffer`` is the plain episode replay underneath (Q-Prop's, and IPG's on tasks without
+goals); ``HerReplayBuffer`` adds the goals and the relabelling. With ``n_sampled_goal = 0`` it
+stores goals but replays every transition with its real goal (IPG's ``--no-her`` ablation).
 
 Storage is circular, ``(rows, num_envs, ...)``: one row per vector-env step, so the N envs of a
 gymnasium vector environment write side by side and every episode lies in one column. When the
@@ -38,17 +39,99 @@ import numpy as np
 GOAL_SELECTION_STRATEGIES = ("future", "final", "episode")
 
 
-class HerReplayBuffer:
-    """Args:
+class ReplayBuffer:
+    """Episode replay: transitions of finished episodes, sampled uniformly.
+
+    Args:
         buffer_size: transitions kept, over all envs.
         num_envs: parallel environments writing one transition each per ``add``.
-        obs_dim, act_dim, goal_dim: sizes (``goal_dim = 0``: no goals, no relabelling).
+        obs_dim, act_dim: sizes.
+        seed: of the sampling generator.
+    """
+
+    def __init__(self, buffer_size: int, num_envs: int, obs_dim: int, act_dim: int, seed=None):
+        self.rows, self.num_envs = buffer_size // num_envs, num_envs
+        self.rng = np.random.default_rng(seed)
+        shape = (self.rows, num_envs)
+        self.obs = np.zeros((*shape, obs_dim), np.float32)
+        self.next_obs = np.zeros((*shape, obs_dim), np.float32)
+        self.actions = np.zeros((*shape, act_dim), np.float32)
+        self.rewards = np.zeros(shape, np.float32)
+        self.terminations = np.zeros(shape, np.float32)
+        self.ep_start = np.zeros(shape, np.int64)  # row where the transition's episode starts
+        self.ep_length = np.zeros(shape, np.int64)  # its length once finished, 0 before
+        self.current_start = np.zeros(num_envs, np.int64)  # where each unfinished episode starts
+        self.current_length = np.zeros(num_envs, np.int64)
+        self.pos, self.filled = 0, 0  # next row to write, rows written so far (at most rows)
+        self._sampleable = None  # flat indices of sampleable transitions, cached between adds
+
+    def add(self, obs, actions, rewards, next_obs, terminations, truncations) -> None:
+        """Store one vector-env step: every argument has leading dimension ``num_envs``.
+
+        ``next_obs`` is the real next observation (the final one where the episode ended, not
+        the reset observation a vector env returns in its place).
+        """
+        p = self.pos
+        for e in np.flatnonzero(self.ep_length[p] > 0):  # overwriting a stored episode: drop it
+            self.ep_length[
+                (self.ep_start[p, e] + np.arange(self.ep_length[p, e])) % self.rows, e
+            ] = 0
+        if np.any(self.current_length >= self.rows):
+            raise ValueError(
+                f"an episode is longer than the buffer's {self.rows} rows per env; "
+                "enlarge buffer_size"
+            )
+        self.obs[p], self.next_obs[p], self.actions[p] = obs, next_obs, actions
+        self.rewards[p], self.terminations[p] = rewards, terminations
+        self.ep_start[p], self.ep_length[p] = self.current_start, 0
+        self.current_length += 1
+        for e in np.flatnonzero(np.logical_or(terminations, truncations)):  # open it to sampling
+            length = self.current_length[e]
+            self.ep_length[(self.current_start[e] + np.arange(length)) % self.rows, e] = length
+            self.current_start[e], self.current_length[e] = (p + 1) % self.rows, 0
+        self.pos, self.filled, self._sampleable = (
+            (p + 1) % self.rows,
+            min(self.filled + 1, self.rows),
+            None,
+        )
+
+    def sampleable(self) -> np.ndarray:
+        """Flat indices (row * num_envs + env) of the transitions of finished, kept episodes."""
+        if self._sampleable is None:
+            self._sampleable = np.flatnonzero(self.ep_length[: self.filled])
+        return self._sampleable
+
+    def num_sampleable(self) -> int:
+        return len(self.sampleable())
+
+    def _sample_rows(self, batch_size: int) -> tuple[np.ndarray, np.ndarray]:
+        flat = self.sampleable()
+        if len(flat) == 0:
+            raise ValueError("no finished episode stored yet")
+        return np.divmod(self.rng.choice(flat, batch_size), self.num_envs)
+
+    def sample(self, batch_size: int) -> dict[str, np.ndarray]:
+        """Transitions of finished episodes, uniformly: ``obs, actions, rewards, next_obs,
+        terminations`` (the names of the stored arrays)."""
+        rows, envs = self._sample_rows(batch_size)
+        return {
+            "obs": self.obs[rows, envs], "actions": self.actions[rows, envs],
+            "rewards": self.rewards[rows, envs].copy(), "next_obs": self.next_obs[rows, envs],
+            "terminations": self.terminations[rows, envs],
+        }  # fmt: skip
+
+
+class HerReplayBuffer(ReplayBuffer):
+    """Episode replay of a goal task, a share ``1 - 1/(n_sampled_goal + 1)`` of every batch
+    relabelled with hindsight goals.
+
+    Args (besides ``ReplayBuffer``'s):
+        goal_dim: size of a goal.
         compute_reward: ``(achieved_goal, desired_goal) -> reward``, vectorised over a batch
             ``(B, goal_dim)``; for gymnasium-robotics tasks
             ``lambda ag, g: env.unwrapped.compute_reward(ag, g, None)``.
-        n_sampled_goal: k, relabelled transitions per real one.
+        n_sampled_goal: k, relabelled transitions per real one (0: no relabelling).
         goal_selection_strategy: ``future``, ``final`` or ``episode``.
-        seed: of the sampling generator.
     """
 
     def __init__(
@@ -57,85 +140,47 @@ class HerReplayBuffer:
         num_envs: int,
         obs_dim: int,
         act_dim: int,
-        goal_dim: int = 0,
-        compute_reward: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+        goal_dim: int,
+        compute_reward: Callable[[np.ndarray, np.ndarray], np.ndarray],
         n_sampled_goal: int = 4,
         goal_selection_strategy: str = "future",
-        seed: int | None = None,
+        seed=None,
     ):
         if goal_selection_strategy not in GOAL_SELECTION_STRATEGIES:
-            raise ValueError(f"goal_selection_strategy must be one of {GOAL_SELECTION_STRATEGIES}, got {goal_selection_strategy!r}")
+            raise ValueError(
+                f"goal_selection_strategy must be one of {GOAL_SELECTION_STRATEGIES}, "
+                f"got {goal_selection_strategy!r}"
+            )
         if n_sampled_goal < 0:
             raise ValueError(f"n_sampled_goal must be >= 0, got {n_sampled_goal}")
-        if n_sampled_goal > 0 and (goal_dim == 0 or compute_reward is None):
-            raise ValueError("relabelling (n_sampled_goal > 0) needs goals and a compute_reward callable")
-        self.rows, self.num_envs = buffer_size // num_envs, num_envs
+        super().__init__(buffer_size, num_envs, obs_dim, act_dim, seed)
         self.compute_reward, self.strategy = compute_reward, goal_selection_strategy
         self.her_ratio = 1.0 - 1.0 / (n_sampled_goal + 1)
-        self.rng = np.random.default_rng(seed)
-        shape = (self.rows, num_envs)
-        self.obs = np.zeros((*shape, obs_dim), np.float32)
-        self.next_obs = np.zeros((*shape, obs_dim), np.float32)
-        self.actions = np.zeros((*shape, act_dim), np.float32)
-        self.rewards = np.zeros(shape, np.float32)
-        self.terminations = np.zeros(shape, np.float32)
-        self.achieved_goal = np.zeros((*shape, goal_dim), np.float32)  # ag_t
-        self.next_achieved_goal = np.zeros((*shape, goal_dim), np.float32)  # ag_{t+1}
-        self.desired_goal = np.zeros((*shape, goal_dim), np.float32)
-        self.ep_start = np.zeros(shape, np.int64)  # row where the transition's episode starts
-        self.ep_length = np.zeros(shape, np.int64)  # its length once finished, 0 before (never sampled)
-        self.current_start = np.zeros(num_envs, np.int64)  # row where each env's unfinished episode starts
-        self.current_length = np.zeros(num_envs, np.int64)
-        self.pos, self.filled = 0, 0  # next row to write, rows written so far (at most rows)
-        self._sampleable = None  # flat indices of sampleable transitions, cached between adds
+        shape = (self.rows, num_envs, goal_dim)
+        self.achieved_goal = np.zeros(shape, np.float32)  # ag_t
+        self.next_achieved_goal = np.zeros(shape, np.float32)  # ag_{t+1}
+        self.desired_goal = np.zeros(shape, np.float32)
 
-    def add(self, obs, action, reward, next_obs, terminated, truncated, achieved_goal=None, next_achieved_goal=None, desired_goal=None):
-        """Store one vector-env step: every argument has leading dimension ``num_envs``.
-
-        ``next_obs`` / ``next_achieved_goal`` are the true next ones (the final observation where
-        the episode ended, not the reset observation a vector env returns in its place).
-        """
+    def add(
+        self, obs, actions, rewards, next_obs, terminations, truncations,
+        achieved_goal, next_achieved_goal, desired_goal,
+    ) -> None:  # fmt: skip
+        """As ``ReplayBuffer.add``, with the goals; ``next_achieved_goal`` is the real next one."""
         p = self.pos
-        for e in np.flatnonzero(self.ep_length[p] > 0):  # overwriting a stored episode: drop all of it
-            self.ep_length[(self.ep_start[p, e] + np.arange(self.ep_length[p, e])) % self.rows, e] = 0
-        if np.any(self.current_length >= self.rows):
-            raise ValueError(f"an episode is longer than the buffer's {self.rows} rows per env; enlarge buffer_size")
-        self.obs[p], self.next_obs[p], self.actions[p] = obs, next_obs, action
-        self.rewards[p], self.terminations[p] = reward, terminated
-        if achieved_goal is not None:
-            self.achieved_goal[p], self.next_achieved_goal[p], self.desired_goal[p] = achieved_goal, next_achieved_goal, desired_goal
-        self.ep_start[p], self.ep_length[p] = self.current_start, 0
-        self.current_length += 1
-        for e in np.flatnonzero(np.logical_or(terminated, truncated)):  # the episode is complete: open it to sampling
-            length = self.current_length[e]
-            self.ep_length[(self.current_start[e] + np.arange(length)) % self.rows, e] = length
-            self.current_start[e], self.current_length[e] = (p + 1) % self.rows, 0
-        self.pos, self.filled, self._sampleable = (p + 1) % self.rows, min(self.filled + 1, self.rows), None
-
-    def sampleable(self) -> np.ndarray:
-        """Flat indices (row * num_envs + env) of the transitions of finished, not overwritten episodes."""
-        if self._sampleable is None:
-            self._sampleable = np.flatnonzero(self.ep_length[: self.filled])
-        return self._sampleable
-
-    def num_sampleable(self) -> int:
-        return len(self.sampleable())
+        super().add(obs, actions, rewards, next_obs, terminations, truncations)
+        self.achieved_goal[p], self.next_achieved_goal[p] = achieved_goal, next_achieved_goal
+        self.desired_goal[p] = desired_goal
 
     def sample(self, batch_size: int) -> dict[str, np.ndarray]:
-        """A batch of transitions from finished episodes, a share ``her_ratio`` relabelled.
-
-        Returns arrays ``obs, action, reward, next_obs, terminated, achieved_goal,
-        next_achieved_goal, desired_goal`` (the goal after relabelling) and the boolean
-        ``relabelled``.
-        """
-        flat = self.sampleable()
-        if len(flat) == 0:
-            raise ValueError("no finished episode stored yet")
-        rows, envs = np.divmod(self.rng.choice(flat, batch_size), self.num_envs)
+        """As ``ReplayBuffer.sample``, plus ``achieved_goal, next_achieved_goal, desired_goal``
+        (the goal after relabelling) and the boolean ``relabelled``."""
+        rows, envs = self._sample_rows(batch_size)
         batch = {
-            "obs": self.obs[rows, envs], "action": self.actions[rows, envs], "reward": self.rewards[rows, envs].copy(),
-            "next_obs": self.next_obs[rows, envs], "terminated": self.terminations[rows, envs],
-            "achieved_goal": self.achieved_goal[rows, envs], "next_achieved_goal": self.next_achieved_goal[rows, envs],
+            "obs": self.obs[rows, envs], "actions": self.actions[rows, envs],
+            "rewards": self.rewards[rows, envs].copy(), "next_obs": self.next_obs[rows, envs],
+            "terminations": self.terminations[rows, envs],
+            "achieved_goal": self.achieved_goal[rows, envs],
+            "next_achieved_goal": self.next_achieved_goal[rows, envs],
             "desired_goal": self.desired_goal[rows, envs].copy(),
         }  # fmt: skip
         relabel = self.rng.random(batch_size) < self.her_ratio
@@ -152,5 +197,8 @@ class HerReplayBuffer:
                 j = self.rng.integers(0, length)
             new_goal = self.next_achieved_goal[(start + j) % self.rows, e]  # g' = ag_{j+1}
             batch["desired_goal"][relabel] = new_goal
-            batch["reward"][relabel] = self.compute_reward(batch["next_achieved_goal"][relabel], new_goal)  # r' from ag_{t+1}
+            # r' from ag_{t+1}, the achieved goal of the state the transition reached
+            batch["rewards"][relabel] = self.compute_reward(
+                batch["next_achieved_goal"][relabel], new_goal
+            )
         return batch

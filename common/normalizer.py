@@ -2,7 +2,8 @@
 
 Shared by all three scripts because a saved model is only usable together with the statistics
 its inputs were normalised by: the scripts save ``state_dict()`` beside the weights and evaluate
-with the statistics frozen.
+with the statistics frozen. ``InputNormalizer`` is ``ipg_her.py``'s input: observation and goal
+normalised separately.
 
 The update merges the statistics of a new batch into the running ones exactly (Chan et al.'s
 parallel algorithm), so feeding the data in batches gives the same mean and variance as
@@ -10,6 +11,7 @@ parallel algorithm), so feeding the data in batches gives the same mean and vari
 """
 
 import numpy as np
+import torch
 
 
 class RunningMeanStd:
@@ -38,8 +40,43 @@ class RunningMeanStd:
         return np.clip(z, -self.clip, self.clip).astype(np.float32)
 
     def state_dict(self) -> dict:
-        return {"mean": self.mean.copy(), "var": self.var.copy(), "count": self.count, "clip": self.clip}
+        return {
+            "mean": self.mean.copy(),
+            "var": self.var.copy(),
+            "count": self.count,
+            "clip": self.clip,
+        }
 
     def load_state_dict(self, state: dict) -> None:
         self.mean, self.var = np.asarray(state["mean"]), np.asarray(state["var"])
         self.count, self.clip = float(state["count"]), float(state["clip"])
+
+
+class InputNormalizer:
+    """Policy and critic input: the normalised observation, followed on goal tasks by the
+    normalised goal (one statistic for desired and achieved goals)."""
+
+    def __init__(self, obs_dim: int, goal_dim: int):
+        self.obs_rms = RunningMeanStd((obs_dim,), clip=5.0)
+        self.goal_rms = RunningMeanStd((goal_dim,), clip=5.0)
+        self.goal_task = goal_dim > 0
+
+    def update(self, raw) -> None:
+        if self.goal_task:
+            self.obs_rms.update(raw["observation"])
+            self.goal_rms.update(np.concatenate([raw["desired_goal"], raw["achieved_goal"]]))
+        else:
+            self.obs_rms.update(raw)
+
+    def __call__(self, obs: np.ndarray, goal: np.ndarray | None = None) -> torch.Tensor:
+        x = self.obs_rms.normalize(obs)
+        if self.goal_task:
+            x = np.concatenate([x, self.goal_rms.normalize(goal)], axis=-1)
+        return torch.as_tensor(x)
+
+    def raw(self, raw) -> torch.Tensor:
+        """Normalise a raw environment observation (a Dict on goal tasks)."""
+        return self(raw["observation"], raw["desired_goal"]) if self.goal_task else self(raw)
+
+    def state_dict(self) -> dict:
+        return {"obs_rms": self.obs_rms.state_dict(), "goal_rms": self.goal_rms.state_dict()}

@@ -1,4 +1,5 @@
-"""Shared test helpers: run a script in a subprocess and read back its TensorBoard scalars."""
+"""Shared test helpers: run a script in a subprocess, read back its TensorBoard scalars, and a
+random on-policy batch for the update functions."""
 
 import os
 import subprocess
@@ -6,12 +7,15 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def run_script(script: str, log_dir: Path, *flags: str, timeout: int = 600) -> subprocess.CompletedProcess:
+def run_script(
+    script: str, log_dir: Path, *flags: str, timeout: int = 600
+) -> subprocess.CompletedProcess:
     """``python {script} --log-dir {log_dir} {flags}`` from the project root, output captured."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}
     cmd = [sys.executable, str(ROOT / script), "--log-dir", str(log_dir), *flags]
@@ -44,3 +48,23 @@ def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> No
 @pytest.fixture(scope="session")
 def root() -> Path:
     return ROOT
+
+
+def random_batch(n: int, obs_dim: int, act_dim: int, agent, seed: int = 0) -> dict:
+    """An on-policy batch as ``make_batch`` returns it: actions sampled from ``agent``'s policy,
+    random advantages and returns."""
+    g = torch.Generator().manual_seed(seed)
+    obs = torch.randn(n, obs_dim, generator=g)
+    with torch.no_grad():
+        pi = agent.dist(obs)
+        actions = pi.mean + pi.stddev * torch.randn(n, act_dim, generator=g)
+        logprobs = pi.log_prob(actions).sum(-1)
+        return {
+            "obs": obs,
+            "actions": actions,
+            "logprobs": logprobs,
+            "mean": pi.mean,
+            "std": pi.stddev,
+            "advantages": torch.randn(n, generator=g),
+            "returns": torch.randn(n, generator=g),
+        }

@@ -1,12 +1,13 @@
-"""benchmarks/: the quick suite end to end, resume, the report against the event files, a failing run."""
+"""benchmarks/: the quick suite end to end, resume, the report against the event files, and a
+failing run."""
 
 import re
 
 import numpy as np
 import pytest
+from conftest import scalars
 
 from benchmarks import report, run
-from conftest import scalars
 
 
 def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path, capsys):
@@ -22,20 +23,42 @@ def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path
     assert f"0 to run, {len(runs)} already finished" in capsys.readouterr().out
 
     results = tmp_path / "results"
-    assert report.main(report.Args(suite="quick", runs_dir=str(tmp_path / "runs"), results_dir=str(results))) == 0
-    for name in ("fig3_hopper.png", "fig4_fetchreach.png", "fig5_fetchreach_success.png", "results.md", "curves.json"):
+    assert (
+        report.main(
+            report.Args(suite="quick", runs_dir=str(tmp_path / "runs"), results_dir=str(results))
+        )
+        == 0
+    )
+    for name in (
+        "fig3_hopper.png",
+        "fig4_fetchreach.png",
+        "fig5_fetchreach_success.png",
+        "results.md",
+        "curves.json",
+    ):
         assert (results / name).stat().st_size > 0, name
     text = (results / "results.md").read_text()
-    # the Hopper PPO-KL row's final return is the mean of the last 100 training episodes in the event file
+    # the Hopper PPO-KL row's final return: the mean of the event file's last 100 training episodes
     row = next(line for line in text.splitlines() if line.startswith("| Hopper-v5 | PPO-KL |"))
     final = float(re.split(r"\s*\|\s*", row)[4].split("±")[0])
-    (event_dir,) = [p for p in (tmp_path / "runs" / "quick" / "ppo_kl__Hopper-v5__seed1").iterdir() if p.is_dir()]
+    (event_dir,) = [
+        p
+        for p in (tmp_path / "runs" / "quick" / "ppo_kl__Hopper-v5__seed1").iterdir()
+        if p.is_dir()
+    ]
     returns = [v for _, v in scalars(event_dir)["charts/episodic_return"]]
     assert abs(final - np.mean(returns[-100:])) <= 0.5
     # the FetchReach IPG+HER row's final eval success is the last eval/success_rate
     row = next(line for line in text.splitlines() if line.startswith("| FetchReach-v4 | IPG+HER |"))
-    (event_dir,) = [p for p in (tmp_path / "runs" / "quick" / "ipg_her__FetchReach-v4__seed1").iterdir() if p.is_dir()]
-    assert abs(float(re.split(r"\s*\|\s*", row)[7]) - scalars(event_dir)["eval/success_rate"][-1][1]) <= 0.005
+    (event_dir,) = [
+        p
+        for p in (tmp_path / "runs" / "quick" / "ipg_her__FetchReach-v4__seed1").iterdir()
+        if p.is_dir()
+    ]
+    assert (
+        abs(float(re.split(r"\s*\|\s*", row)[7]) - scalars(event_dir)["eval/success_rate"][-1][1])
+        <= 0.005
+    )
     # the export alone redraws the same table
     assert report.main(report.Args(suite="quick", results_dir=str(results), from_export=True)) == 0
     assert (results / "results.md").read_text() == text

@@ -1,6 +1,6 @@
-"""common/her.py against its definition, on hand-written episodes whose every field says where it came from.
-
-Observation and achieved goal of env e, episode n, step t are [e, n, t]; the desired goal is [e, n, -1].
+"""common/her.py against its definition, on hand-written episodes whose every field says where
+it came from: observation and achieved goal of env e, episode n, step t are [e, n, t]; the
+desired goal is [e, n, -1].
 """
 
 import numpy as np
@@ -15,25 +15,46 @@ def compute_reward(achieved_goal, desired_goal):
 
 
 def fill(buffer, lengths_per_env, steps, unfinished_tail=True):
-    """Drive ``buffer.add`` like a vector env: env e runs episodes of lengths ``lengths_per_env[e]`` in turn."""
+    """Drive ``buffer.add`` like a vector env: env e runs episodes of ``lengths_per_env[e]``."""
     num_envs = len(lengths_per_env)
     ep, t = np.zeros(num_envs, int), np.zeros(num_envs, int)
     k = np.zeros(num_envs, int)  # index into each env's list of lengths
     for _ in range(steps):
         now = np.stack([[e, ep[e], t[e]] for e in range(num_envs)]).astype(np.float32)
         nxt = now + np.array([0, 0, 1], np.float32)
-        length = np.array([lengths_per_env[e][k[e] % len(lengths_per_env[e])] for e in range(num_envs)])
+        length = np.array(
+            [lengths_per_env[e][k[e] % len(lengths_per_env[e])] for e in range(num_envs)]
+        )
         ended = t + 1 >= length
         goal = np.stack([[e, ep[e], -1] for e in range(num_envs)]).astype(np.float32)
-        buffer.add(now, np.zeros((num_envs, 1)), compute_reward(nxt, goal), nxt, np.zeros(num_envs, bool), ended,
-                   achieved_goal=now, next_achieved_goal=nxt, desired_goal=goal)  # fmt: skip
+        buffer.add(
+            now,
+            np.zeros((num_envs, 1)),
+            compute_reward(nxt, goal),
+            nxt,
+            np.zeros(num_envs, bool),
+            ended,
+            achieved_goal=now,
+            next_achieved_goal=nxt,
+            desired_goal=goal,
+        )
         t = np.where(ended, 0, t + 1)
         k, ep = k + ended, ep + ended
     return ep, t
 
 
 def make(size=1000, num_envs=2, k=4, strategy="future"):
-    return HerReplayBuffer(size, num_envs, 3, 1, 3, compute_reward, n_sampled_goal=k, goal_selection_strategy=strategy, seed=0)
+    return HerReplayBuffer(
+        size,
+        num_envs,
+        3,
+        1,
+        3,
+        compute_reward,
+        n_sampled_goal=k,
+        goal_selection_strategy=strategy,
+        seed=0,
+    )
 
 
 def episode_length(buffer, batch):
@@ -46,7 +67,9 @@ def episode_length(buffer, batch):
 
 
 @pytest.mark.parametrize("strategy", ["future", "final", "episode"])
-def test_relabelled_goals_come_from_the_same_episode_and_rewards_from_the_next_achieved_goal(strategy):
+def test_relabelled_goals_come_from_the_same_episode_and_rewards_from_the_next_achieved_goal(
+    strategy,
+):
     buffer = make(strategy=strategy)
     fill(buffer, [[5, 7, 3], [4, 6]], 200)
     batch = buffer.sample(5000)
@@ -54,7 +77,9 @@ def test_relabelled_goals_come_from_the_same_episode_and_rewards_from_the_next_a
     np.testing.assert_array_equal(batch["next_achieved_goal"], obs + [0, 0, 1])  # ag_{t+1}
     np.testing.assert_array_equal(batch["next_obs"], obs + [0, 0, 1])
     # real transitions keep their goal and reward
-    np.testing.assert_array_equal(goal[~relabelled], np.c_[obs[~relabelled, :2], -np.ones(np.sum(~relabelled))])
+    np.testing.assert_array_equal(
+        goal[~relabelled], np.c_[obs[~relabelled, :2], -np.ones(np.sum(~relabelled))]
+    )
     # relabelled goals: same env, same episode, an achieved goal ag_{j+1} at the strategy's steps
     np.testing.assert_array_equal(goal[relabelled, :2], obs[relabelled, :2])
     t, g_t, T = obs[relabelled, 2], goal[relabelled, 2], episode_length(buffer, batch)[relabelled]
@@ -64,9 +89,11 @@ def test_relabelled_goals_come_from_the_same_episode_and_rewards_from_the_next_a
         np.testing.assert_array_equal(g_t, T)
     else:
         assert np.all((g_t >= 1) & (g_t <= T)) and np.any(g_t <= t)
-    # every reward equals compute_reward(next achieved goal, goal), and relabelling produces successes
-    np.testing.assert_array_equal(batch["reward"], compute_reward(batch["next_achieved_goal"], goal))
-    assert np.all(batch["reward"][~relabelled] == -1) and np.any(batch["reward"][relabelled] == 0)
+    # every reward is compute_reward(next achieved goal, goal); relabelling produces successes
+    np.testing.assert_array_equal(
+        batch["rewards"], compute_reward(batch["next_achieved_goal"], goal)
+    )
+    assert np.all(batch["rewards"][~relabelled] == -1) and np.any(batch["rewards"][relabelled] == 0)
 
 
 @pytest.mark.parametrize("k", [0, 1, 4, 8])
@@ -84,7 +111,9 @@ def test_unfinished_episodes_are_never_sampled():
     with pytest.raises(ValueError, match="no finished episode"):
         buffer.sample(1)
     buffer = make(k=4)
-    ep, t = fill(buffer, [[10], [50]], 35)  # env 0: three finished episodes and half of one; env 1: none
+    ep, t = fill(
+        buffer, [[10], [50]], 35
+    )  # env 0: three finished episodes and half of one; env 1: none
     assert list(ep) == [3, 0] and buffer.num_sampleable() == 30
     batch = buffer.sample(4000)
     assert np.all(batch["obs"][:, 0] == 0) and set(batch["obs"][:, 1]) == {0, 1, 2}
@@ -103,9 +132,13 @@ def test_wrap_around_with_two_envs_never_mixes_episodes():
     batch = buffer.sample(5000)
     assert set(batch["obs"][:, 0]) == {0, 1}
     relabelled = batch["relabelled"]
-    np.testing.assert_array_equal(batch["desired_goal"][relabelled, :2], batch["obs"][relabelled, :2])
+    np.testing.assert_array_equal(
+        batch["desired_goal"][relabelled, :2], batch["obs"][relabelled, :2]
+    )
     assert np.all(batch["desired_goal"][relabelled, 2] > batch["obs"][relabelled, 2])
-    np.testing.assert_array_equal(batch["reward"], compute_reward(batch["next_achieved_goal"], batch["desired_goal"]))
+    np.testing.assert_array_equal(
+        batch["rewards"], compute_reward(batch["next_achieved_goal"], batch["desired_goal"])
+    )
 
 
 def test_bad_configuration_is_refused():

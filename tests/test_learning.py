@@ -10,7 +10,6 @@ tests/test_her.py instead.
 """
 
 import pytest
-
 from conftest import run_dirs, run_script, scalars
 
 BUDGET = ["--total-timesteps", "5000", "--eval-freq", "0", "--eval-episodes", "20"]
@@ -19,7 +18,9 @@ THRESHOLD = 0.8
 
 @pytest.mark.parametrize("seed", ["1", "2"])
 def test_ipg_her_learns_fetchreach(tmp_path, seed):
-    result = run_script("ipg_her.py", tmp_path, "--env-id", "FetchReach-v4", "--seed", seed, *BUDGET, timeout=300)
+    result = run_script(
+        "ipg_her.py", tmp_path, "--env-id", "FetchReach-v4", "--seed", seed, *BUDGET, timeout=300
+    )
     assert result.returncode == 0, result.stderr
     (run_dir,) = run_dirs(tmp_path)
     success = scalars(run_dir)["eval/success_rate"][-1][1]

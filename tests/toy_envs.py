@@ -29,13 +29,20 @@ class CountingEnv(gym.Env):
 
 
 class CountingGoalEnv(CountingEnv):
-    """CountingEnv as a goal task: observation = achieved goal = [episode, step], desired goal = [episode, -1]."""
+    """CountingEnv as a goal task: observation = achieved goal = [episode, step], desired goal =
+    [episode, -1]."""
 
     def __init__(self, limit: int = 5):
         super().__init__(limit)
         box = gym.spaces.Box(-np.inf, np.inf, (2,), np.float64)
-        self.observation_space = gym.spaces.Dict({"observation": box, "achieved_goal": box, "desired_goal": box})
+        self.observation_space = gym.spaces.Dict(
+            {"observation": box, "achieved_goal": box, "desired_goal": box}
+        )
 
     def _obs(self):
         now = super()._obs()
-        return {"observation": now, "achieved_goal": now.copy(), "desired_goal": np.array([self.episode % 8, -1.0])}
+        return {
+            "observation": now,
+            "achieved_goal": now.copy(),
+            "desired_goal": np.array([self.episode % 8, -1.0]),
+        }

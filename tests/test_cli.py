@@ -1,0 +1,80 @@
+"""common/cli.py and each script's own argument checks, in-process: bad input exits with one
+``error:`` line naming the problem, before any run folder exists."""
+
+import pytest
+
+import ipg_her
+import ppo_kl
+import qprop_ppo
+from common import cli
+
+SCRIPTS = {"ppo_kl": ppo_kl, "qprop_ppo": qprop_ppo, "ipg_her": ipg_her}
+
+
+def refused(capsys, script, *argv: str) -> str:
+    """Parse and check ``argv`` as ``script`` would; return the one error line it exits with."""
+    module = SCRIPTS[script]
+    with pytest.raises(SystemExit) as exit_info:
+        args = cli.parse_args(module.Args, list(argv))
+        if module is ipg_her:
+            module.check_args(args, list(argv))
+        else:
+            module.check_args(args)
+    assert exit_info.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    return lines[0]
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["--env-id", "NoSuchEnv-v0"], "NoSuchEnv-v0"),
+        (["--total-timesteps", "0"], "--total-timesteps must be positive"),
+        (["--num-envs", "-1"], "--num-envs must be positive"),
+        (["--eval-episodes", "0"], "--eval-episodes must be positive"),
+        (["--num-steps", "10", "--total-timesteps", "5"], "less than one batch"),
+        (["--num-envs", "1", "--num-steps", "10", "--num-minibatches", "3"], "minibatches"),
+        (["--gamma", "1.5"], "--gamma"),
+        (["--gae-lambda", "-0.1"], "--gae-lambda"),
+        (["--kl-target", "0"], "--kl-target"),
+        (["--seed", "one"], "--seed"),  # a parse error, reduced to one line
+    ],
+)
+def test_common_checks(capsys, script, argv, needle):
+    assert needle in refused(capsys, script, *argv)
+
+
+@pytest.mark.parametrize(
+    "script, argv, needle",
+    [
+        ("qprop_ppo", ["--eta-mode", "foo"], "foo"),
+        ("qprop_ppo", ["--tau", "-0.1"], "--tau"),
+        ("qprop_ppo", ["--critic-steps", "-1"], "--critic-steps"),
+        ("qprop_ppo", ["--critic-batch-size", "0"], "--critic-batch-size"),
+        ("ipg_her", ["--nu", "1.5"], "--nu"),
+        ("ipg_her", ["--tau", "0"], "--tau"),
+        ("ipg_her", ["--her-goal-selection-strategy", "foo"], "foo"),
+        ("ipg_her", ["--off-policy-batch-size", "0"], "--off-policy-batch-size"),
+        ("ipg_her", ["--env-id", "Hopper-v5", "--her"], "--her needs a goal task"),
+        ("ipg_her", ["--env-id", "Hopper-v5", "--her-n-sampled-goal", "2"], "goal task"),
+    ],
+)
+def test_algorithm_checks(capsys, script, argv, needle):
+    assert needle in refused(capsys, script, *argv)
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_defaults_pass_the_checks(script):
+    module = SCRIPTS[script]
+    args = cli.parse_args(module.Args, [])
+    module.check_args(args, []) if module is ipg_her else module.check_args(args)
+    assert args.env_id in ("Hopper-v5", "FetchReach-v4")
+
+
+def test_checks_do_not_modify_args():
+    args = cli.parse_args(ipg_her.Args, ["--env-id", "Hopper-v5"])
+    before = vars(args).copy()
+    ipg_her.check_args(args, ["--env-id", "Hopper-v5"])
+    assert vars(args) == before
