@@ -25,12 +25,22 @@ IPG paper found best, or ``batch``, the on-policy states). With ``--use-cv`` the
 becomes A_hat - A_bar, A_bar the Taylor control variate of Q-Prop (eq. 9), and the off-policy
 term's weight becomes 1 (IPG's b = 1).
 
+Normalisation (``--normalization``): PPO normalises the likelihood-ratio signal to unit std
+sigma, while Q_w stays in return units; left so (``paper``, what the reference code did), the
+weight ratio of the two terms is nu sigma / (1 - nu), not nu / (1 - nu), and nu's meaning drifts
+with the reward scale. ``unbiased`` (the default) divides the off-policy term by the same sigma,
+so that the whole update is a positive multiple of eq. 10 and nu is eq. 10's nu whatever the
+reward scale (tests/test_ipg.py checks that scaling rewards and critic by c leaves the update
+unchanged). The KL penalty, its bounded beta and the separate gradient clipping of policy and V
+are ``ppo_kl.py``'s.
+
 Critic (eq. 6-7): Q_w(s, a) learns off-policy from the replay buffer with the target
 r + gamma (1 - terminated) Q_w'(s', mu_theta(s')), using the current policy's mean at s' (no target
 policy network), and a soft target update after every critic step (eq. 6). Rewards are stored raw
 and scaled at sample time by the same running std that scales GAE's rewards, so critic and GAE
-share one scale. The critic trains on the new data *before* the policy update, so A_bar and the
-off-policy term use the updated critic. On goal tasks the targets are clipped to
+share one scale; the replay stores the action executed (clipped to the bounds). The critic
+trains on the new data *before* the policy update, so A_bar and the off-policy term use the
+updated critic. On goal tasks the targets are clipped to
 [-1/(1-gamma), 0], the returns a 0/-1 reward allows (OpenAI baselines' HER recipe), so that the
 critic cannot drift above the best possible return.
 
@@ -62,13 +72,14 @@ import torch.nn as nn
 import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
-from common import cli
+from common import cli, seeding
 from common.gae import compute_gae
 from common.her import HerReplayBuffer, ReplayBuffer
 from common.normalizer import InputNormalizer, RunningMeanStd
 
 cli.register_goal_tasks()
 torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
+BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
 
 
 @dataclass
@@ -76,7 +87,7 @@ class Args:
     exp_name: str = os.path.basename(__file__)[: -len(".py")]
     """the name of this experiment (part of the run folder's name)"""
     seed: int = 1
-    """seed of python, numpy, torch and the environments"""
+    """the run's seed: every random stream of the run derives from it (common/seeding.py)"""
     torch_deterministic: bool = True
     """if toggled, `torch.backends.cudnn.deterministic=True`"""
     capture_video: bool = False
@@ -126,7 +137,7 @@ class Args:
     vf_coef: float = 0.5
     """coefficient of the value loss"""
     max_grad_norm: float = 0.5
-    """the maximum norm for gradient clipping"""
+    """the maximum gradient norm, of the policy and of V each (clipped separately)"""
     hidden: int = 128
     """width of the two hidden layers of every network"""
     norm_reward: bool = False
@@ -139,6 +150,8 @@ class Args:
     """control variate: learning signal A_hat - A_bar (eq. 9) and off-policy weight 1"""
     off_policy_states: Literal["replay", "batch"] = "replay"
     """the off-policy term's states: uniform from the replay buffer, or the on-policy batch"""
+    normalization: Literal["paper", "unbiased"] = "unbiased"
+    """normalise the learning signal only (paper, biased) or the off-policy term too (unbiased)"""
     q_bar: Literal["mean", "sample"] = "sample"
     """Q_bar_w(s) as Q_w(s, mu(s)) (mean) or Q_w(s, mu(s) + sigma eps), a reparameterised sample"""
     clip_q_target: bool = True
@@ -234,6 +247,9 @@ class Agent(nn.Module):
         # state-independent log std
         self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))
 
+    def actor_parameters(self) -> list[nn.Parameter]:
+        return [*self.actor_mean.parameters(), self.actor_logstd]
+
     def get_value(self, x: torch.Tensor) -> torch.Tensor:
         return self.critic(x).squeeze(-1)
 
@@ -243,17 +259,22 @@ class Agent(nn.Module):
 
 
 class QNetwork(nn.Module):
-    """Critic Q_w(s, a), trained off-policy (eq. 6-7)."""
+    """Critic Q_w(s, a) of the action the environment executes: ``a`` is clipped to the action
+    bounds first, so Q_w is never asked about actions it was not trained on (the targets, the
+    off-policy term and the control variate all see the policy's action clipped)."""
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden: int = 128):
+    def __init__(self, obs_dim: int, act_dim: int, hidden: int = 128, low=-np.inf, high=np.inf):
         super().__init__()
         self.net = nn.Sequential(
             nn.Linear(obs_dim + act_dim, hidden), nn.ReLU(),
             nn.Linear(hidden, hidden), nn.ReLU(),
             nn.Linear(hidden, 1),
         )  # fmt: skip
+        self.register_buffer("low", torch.as_tensor(low, dtype=torch.float32).expand(act_dim))
+        self.register_buffer("high", torch.as_tensor(high, dtype=torch.float32).expand(act_dim))
 
     def forward(self, x: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        a = torch.clamp(a, self.low, self.high)  # the executed action
         return self.net(torch.cat([x, a], -1)).squeeze(-1)
 
 
@@ -288,7 +309,8 @@ def collect_rollout(
         with torch.no_grad():
             ro["actions"][t] = agent.dist(ro["obs"][t]).sample()
         action = ro["actions"][t].numpy()
-        next_raw_obs, reward, terminated, truncated, infos = envs.step(np.clip(action, low, high))
+        executed = np.clip(action, low, high)  # the critic learns Q of the action executed
+        next_raw_obs, reward, terminated, truncated, infos = envs.step(executed)
         ended = terminated | truncated
         ro["rewards"][t] = torch.as_tensor(reward)
         ro["terminations"][t] = torch.as_tensor(terminated)
@@ -308,7 +330,7 @@ def collect_rollout(
             episodes.append((t, i, episode_return, length, success))
         if norm.goal_task:
             rb.add(
-                obs=raw_obs["observation"], actions=action, rewards=reward,
+                obs=raw_obs["observation"], actions=executed, rewards=reward,
                 next_obs=real_next_obs["observation"], terminations=terminated,
                 truncations=truncated, achieved_goal=raw_obs["achieved_goal"],
                 next_achieved_goal=real_next_obs["achieved_goal"],
@@ -316,7 +338,7 @@ def collect_rollout(
             )  # fmt: skip
         else:
             rb.add(
-                obs=raw_obs, actions=action, rewards=reward, next_obs=real_next_obs,
+                obs=raw_obs, actions=executed, rewards=reward, next_obs=real_next_obs,
                 terminations=terminated, truncations=truncated,
             )  # fmt: skip
         raw_obs = next_raw_obs
@@ -377,15 +399,18 @@ def make_batch(
         }
 
 
-def sample_replay(rb: ReplayBuffer, norm: InputNormalizer, batch_size: int) -> dict:
-    """A (hindsight-relabelled) replay batch as tensors, normalised by the current statistics."""
+def sample_replay(
+    rb: ReplayBuffer, norm: InputNormalizer, reward_scale: float, batch_size: int
+) -> dict:
+    """A (hindsight-relabelled) replay batch as tensors, inputs normalised and rewards scaled by
+    the current statistics."""
     data = rb.sample(batch_size)
     goal = data["desired_goal"] if norm.goal_task else None
     return {
         "obs": norm(data["obs"], goal),
         "next_obs": norm(data["next_obs"], goal),
         "actions": torch.as_tensor(data["actions"]),
-        "rewards": torch.as_tensor(data["rewards"]),
+        "rewards": torch.as_tensor(data["rewards"] * reward_scale),
         "terminations": torch.as_tensor(data["terminations"]),
     }
 
@@ -455,12 +480,13 @@ def ipg_update(
     """
     batch_size = b["obs"].shape[0]
     minibatch_size = batch_size // args.num_minibatches
-    # A_hat - A_bar with the control variate, on the raw scale
+    # A_hat (A_hat - A_bar with the control variate), on the raw scale
     learning_signal = b["advantages"] - b["cv"] if args.use_cv else b["advantages"]
+    off_scale, signal_std = 1.0, learning_signal.std()
     if args.norm_adv:
-        learning_signal = (learning_signal - learning_signal.mean()) / (
-            learning_signal.std() + 1e-8
-        )
+        learning_signal = (learning_signal - learning_signal.mean()) / (signal_std + 1e-8)
+        if args.normalization == "unbiased":
+            off_scale = 1.0 / (signal_std.item() + 1e-8)  # the same 1/sigma on both terms
     off_weight = 1.0 if args.use_cv else args.nu  # b = 1 with the control variate
     use_off_policy = qf is not None and off_weight > 0
     pi_old = Normal(b["mean"], b["std"])
@@ -483,12 +509,13 @@ def ipg_update(
                 if args.q_bar == "sample":  # a = mu + sigma eps: the gradient reaches sigma too
                     a_off = a_off + agent.actor_logstd.exp() * torch.randn_like(a_off)
                 off_term = -qf(s_off, a_off).mean()  # -Q_bar_w(s), s ~ beta (eq. 10)
-                pg_loss = pg_loss + off_weight * off_term
+                pg_loss = pg_loss + off_weight * off_scale * off_term
             v_loss = 0.5 * ((agent.get_value(b["obs"][mb]) - b["returns"][mb]) ** 2).mean()
             loss = pg_loss + args.vf_coef * v_loss
             optimizer.zero_grad()
             loss.backward()
-            nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+            nn.utils.clip_grad_norm_(agent.actor_parameters(), args.max_grad_norm)  # policy and
+            nn.utils.clip_grad_norm_(agent.critic.parameters(), args.max_grad_norm)  # V apart
             optimizer.step()
         epochs_run = epoch + 1
         if args.kl_early_stop is not None:
@@ -504,11 +531,13 @@ def ipg_update(
         entropy = pi.entropy().sum(-1).mean().item()
     stats = {"policy_loss": pg_loss.item(), "value_loss": v_loss.item(), "approx_kl": d,
              "beta": beta, "epochs": epochs_run, "entropy": entropy,
-             "on_policy_term": on_term.item(), "off_policy_term": off_term.item()}  # fmt: skip
+             "on_policy_term": on_term.item(), "off_policy_term": off_term.item(),
+             "signal_std": signal_std.item()}  # fmt: skip
     if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
         beta /= 2
     elif d > args.kl_target * 1.5:
         beta *= 2
+    beta = min(max(beta, BETA_MIN), BETA_MAX)
     return beta, stats
 
 
@@ -516,18 +545,18 @@ def evaluate(
     agent: Agent,
     norm: InputNormalizer,
     env_id: str,
-    episodes: int,
-    seed: int,
+    seeds: list[int],
     video_dir: str | None = None,
 ):
-    """Run the deterministic policy a = mu_theta(s) with frozen normaliser statistics.
+    """Run the deterministic policy a = mu_theta(s), one episode per reset seed in ``seeds``,
+    with frozen normaliser statistics.
 
     Returns the episodic returns and, on goal tasks, the successes (``is_success`` at the end).
     """
     env = make_env(env_id, video_dir)()
     returns, successes = [], []
-    for episode in range(episodes):
-        obs, _ = env.reset(seed=seed + episode)
+    for seed in seeds:
+        obs, _ = env.reset(seed=seed)
         done = False
         while not done:
             with torch.no_grad():
@@ -551,10 +580,11 @@ if __name__ == "__main__":
     args.num_iterations = args.total_timesteps // args.batch_size
     run_dir, writer = cli.start_run(args)
 
-    # TRY NOT TO MODIFY: seeding
-    random.seed(args.seed)
-    np.random.seed(args.seed)
-    torch.manual_seed(args.seed)
+    # TRY NOT TO MODIFY: seeding, one independent stream per use (common/seeding.py)
+    streams = seeding.streams(args.seed, args.num_envs)
+    random.seed(streams.global_seed)
+    np.random.seed(streams.global_seed)
+    torch.manual_seed(streams.torch_seed)
     torch.backends.cudnn.deterministic = args.torch_deterministic
     torch.set_num_threads(args.torch_threads)
 
@@ -570,13 +600,14 @@ if __name__ == "__main__":
     obs_dim = space["observation"].shape[0] if goal_task else space.shape[0]
     goal_dim = space["desired_goal"].shape[0] if goal_task else 0
     act_dim = envs.single_action_space.shape[0]
-    envs.single_action_space.seed(args.seed)
+    envs.single_action_space.seed(streams.action_space_seed)
 
     # ALGO LOGIC: networks, optimisers, normalisers, replay
     norm = InputNormalizer(obs_dim, goal_dim)
     agent = Agent(obs_dim + goal_dim, act_dim, hidden=args.hidden, init_log_std=args.init_log_std)
     optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
-    qf = QNetwork(obs_dim + goal_dim, act_dim, hidden=args.hidden)
+    low, high = envs.single_action_space.low, envs.single_action_space.high
+    qf = QNetwork(obs_dim + goal_dim, act_dim, hidden=args.hidden, low=low, high=high)
     qf_target = copy.deepcopy(qf)
     q_optimizer = optim.Adam(qf.parameters(), lr=args.critic_learning_rate, fused=True)
     if goal_task:  # hindsight relabelling needs the task's reward function
@@ -585,20 +616,21 @@ if __name__ == "__main__":
             args.buffer_size, args.num_envs, obs_dim, act_dim, goal_dim,
             compute_reward=lambda ag, g: reward_env.unwrapped.compute_reward(ag, g, None),
             n_sampled_goal=args.her_n_sampled_goal if args.her else 0,
-            goal_selection_strategy=args.her_goal_selection_strategy, seed=args.seed,
+            goal_selection_strategy=args.her_goal_selection_strategy, seed=streams.replay_seed,
         )  # fmt: skip
     else:
-        rb = ReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, seed=args.seed)
+        rb = ReplayBuffer(
+            args.buffer_size, args.num_envs, obs_dim, act_dim, seed=streams.replay_seed
+        )
     ret_rms, running_return = RunningMeanStd(()), np.zeros(args.num_envs)  # reward scaling
     beta = args.beta_init
     # goal tasks: the returns a 0/-1 reward allows, for clipping the critic's targets
-    clip_q = goal_task and args.clip_q_target and not args.norm_reward
-    target_range = (-1.0 / (1.0 - args.gamma), 0.0) if clip_q else None
+    q_range = (-1.0 / (1.0 - args.gamma), 0.0) if goal_task and args.clip_q_target else None
 
     # TRY NOT TO MODIFY: start the game
     global_step, train_time, last_eval, exit_code = 0, 0.0, 0, 0
     recent_success = []  # is_success of the last 100 training episodes (goal tasks)
-    raw_obs, _ = envs.reset(seed=args.seed)
+    raw_obs, _ = envs.reset(seed=streams.env_seeds)
     try:
         for iteration in range(1, args.num_iterations + 1):
             t0 = time.time()
@@ -619,21 +651,24 @@ if __name__ == "__main__":
                     writer.add_scalar("charts/success_rate", np.mean(recent_success), step)
             global_step += args.batch_size
 
-            # ALGO LOGIC: scaled rewards for GAE
+            # ALGO LOGIC: one reward scale for GAE and the critic
+            reward_scale = 1.0
             if args.norm_reward:
                 ro["rewards"] = scale_rewards(
                     ro["rewards"], ro["episode_ends"], ret_rms, running_return, args.gamma
                 )
+                reward_scale = float(1.0 / np.sqrt(ret_rms.var + 1e-8))
 
             # ALGO LOGIC: the critic first (eq. 6-7), so that A_bar and the off-policy term see
             # the new data
             learning = global_step >= args.learning_starts and rb.num_sampleable() > 0
             if learning and args.critic_steps > 0:
                 for _ in range(args.critic_steps):
-                    data = sample_replay(rb, norm, args.critic_batch_size)
+                    data = sample_replay(rb, norm, reward_scale, args.critic_batch_size)
                     critic_loss, q_values = critic_step(
                         qf, qf_target, q_optimizer, agent, data,
-                        gamma=args.gamma, tau=args.tau, target_range=target_range,
+                        gamma=args.gamma, tau=args.tau,
+                        target_range=None if q_range is None else (q_range[0] * reward_scale, 0.0),
                     )  # fmt: skip
                 writer.add_scalar("losses/critic_loss", critic_loss, global_step)
                 writer.add_scalar("losses/q_values", q_values, global_step)
@@ -644,9 +679,10 @@ if __name__ == "__main__":
                 b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
 
             # ALGO LOGIC: the IPG update (eq. 10 on eq. 5)
+            replay_states = lambda: sample_replay(rb, norm, 1.0, args.off_policy_batch_size)["obs"]
             beta, stats = ipg_update(
                 agent, optimizer, b, beta, args, qf=qf if learning else None,
-                replay_states=lambda: sample_replay(rb, norm, args.off_policy_batch_size)["obs"],
+                replay_states=replay_states,
             )  # fmt: skip
             if not all(np.isfinite(v) for v in stats.values()):
                 raise FloatingPointError(
@@ -663,6 +699,7 @@ if __name__ == "__main__":
             writer.add_scalar("ipg/nu", args.nu, global_step)
             writer.add_scalar("ipg/on_policy_term", stats["on_policy_term"], global_step)
             writer.add_scalar("ipg/off_policy_term", stats["off_policy_term"], global_step)
+            writer.add_scalar("ipg/signal_std", stats["signal_std"], global_step)
             if args.use_cv:
                 writer.add_scalar("ipg/cv_mean", b["cv"].mean().item(), global_step)
 
@@ -672,7 +709,7 @@ if __name__ == "__main__":
                 last_eval = global_step
                 video_dir = os.path.join(run_dir, "videos") if args.capture_video else None
                 eval_returns, eval_success = evaluate(
-                    agent, norm, args.env_id, args.eval_episodes, args.seed + 10_000, video_dir
+                    agent, norm, args.env_id, streams.eval_seeds(args.eval_episodes), video_dir
                 )
                 writer.add_scalar("eval/episodic_return", eval_returns.mean(), global_step)
                 message = f"step={global_step} eval_return={eval_returns.mean():.1f}"

@@ -11,8 +11,11 @@ surrogate of eq. 5 (negated, since we minimise):
     r_t(theta) = pi_theta(a_t|s_t) / pi_old(a_t|s_t).
 
 beta rule (the PPO paper's, sec. 4): after the epochs, with d the batch-mean analytic KL,
-``d < kl_target / 1.5 -> beta /= 2`` and ``d > 1.5 kl_target -> beta *= 2``. Optionally
-(``--kl-early-stop``) the epochs stop once d exceeds ``kl_early_stop * kl_target``, as in DPPO.
+``d < kl_target / 1.5 -> beta /= 2`` and ``d > 1.5 kl_target -> beta *= 2``, then beta is kept in
+[1/35, 35] as in DPPO (unbounded, a calm stretch halves it towards 0 and one large step then goes
+almost unpenalised). Optionally (``--kl-early-stop``) the epochs stop once d exceeds
+``kl_early_stop * kl_target``, as in DPPO. The policy's and V's gradients are clipped separately,
+so that V's error cannot shrink the policy's step.
 
 Gymnasium 1.x: the vector environment runs in ``AutoresetMode.SAME_STEP``: on the step an
 episode ends the returned observation is already the next episode's first one, and the true
@@ -34,12 +37,13 @@ import torch.nn as nn
 import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
-from common import cli
+from common import cli, seeding
 from common.gae import compute_gae
 from common.normalizer import RunningMeanStd
 
 cli.register_goal_tasks()
 torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
+BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
 
 
 @dataclass
@@ -47,7 +51,7 @@ class Args:
     exp_name: str = os.path.basename(__file__)[: -len(".py")]
     """the name of this experiment (part of the run folder's name)"""
     seed: int = 1
-    """seed of python, numpy, torch and the environments"""
+    """the run's seed: every random stream of the run derives from it (common/seeding.py)"""
     torch_deterministic: bool = True
     """if toggled, `torch.backends.cudnn.deterministic=True`"""
     capture_video: bool = False
@@ -97,7 +101,7 @@ class Args:
     vf_coef: float = 0.5
     """coefficient of the value loss"""
     max_grad_norm: float = 0.5
-    """the maximum norm for gradient clipping"""
+    """the maximum gradient norm, of the policy and of V each (clipped separately)"""
     norm_obs: bool = True
     """normalise observations by running mean and std (saved with the model)"""
     norm_reward: bool = True
@@ -156,6 +160,9 @@ class Agent(nn.Module):
         )  # fmt: skip
         # state-independent log std
         self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))
+
+    def actor_parameters(self) -> list[nn.Parameter]:
+        return [*self.actor_mean.parameters(), self.actor_logstd]
 
     def get_value(self, x: torch.Tensor) -> torch.Tensor:
         return self.critic(x).squeeze(-1)
@@ -295,7 +302,8 @@ def ppo_kl_update(
             loss = pg_loss + args.vf_coef * v_loss
             optimizer.zero_grad()
             loss.backward()
-            nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+            nn.utils.clip_grad_norm_(agent.actor_parameters(), args.max_grad_norm)  # policy and
+            nn.utils.clip_grad_norm_(agent.critic.parameters(), args.max_grad_norm)  # V apart
             optimizer.step()
         epochs_run = epoch + 1
         if args.kl_early_stop is not None:
@@ -315,6 +323,7 @@ def ppo_kl_update(
         beta /= 2
     elif d > args.kl_target * 1.5:
         beta *= 2
+    beta = min(max(beta, BETA_MIN), BETA_MAX)
     return beta, stats
 
 
@@ -322,18 +331,18 @@ def evaluate(
     agent: Agent,
     obs_rms: RunningMeanStd,
     env_id: str,
-    episodes: int,
-    seed: int,
+    seeds: list[int],
     video_dir: str | None = None,
 ):
-    """Run the deterministic policy a = mu_theta(s) with frozen normaliser statistics.
+    """Run the deterministic policy a = mu_theta(s), one episode per reset seed in ``seeds``,
+    with frozen normaliser statistics.
 
     Returns the episodic returns and, on goal tasks, the successes (``is_success`` at the end).
     """
     env = make_env(env_id, video_dir)()
     returns, successes = [], []
-    for episode in range(episodes):
-        obs, _ = env.reset(seed=seed + episode)
+    for seed in seeds:
+        obs, _ = env.reset(seed=seed)
         done = False
         while not done:
             with torch.no_grad():
@@ -357,10 +366,11 @@ if __name__ == "__main__":
     args.num_iterations = args.total_timesteps // args.batch_size
     run_dir, writer = cli.start_run(args)
 
-    # TRY NOT TO MODIFY: seeding
-    random.seed(args.seed)
-    np.random.seed(args.seed)
-    torch.manual_seed(args.seed)
+    # TRY NOT TO MODIFY: seeding, one independent stream per use (common/seeding.py)
+    streams = seeding.streams(args.seed, args.num_envs)
+    random.seed(streams.global_seed)
+    np.random.seed(streams.global_seed)
+    torch.manual_seed(streams.torch_seed)
     torch.backends.cudnn.deterministic = args.torch_deterministic
     torch.set_num_threads(args.torch_threads)
 
@@ -373,7 +383,7 @@ if __name__ == "__main__":
     assert isinstance(envs.single_action_space, gym.spaces.Box), "only continuous actions"
     obs_dim = envs.single_observation_space.shape[0]
     act_dim = envs.single_action_space.shape[0]
-    envs.single_action_space.seed(args.seed)
+    envs.single_action_space.seed(streams.action_space_seed)
 
     # ALGO LOGIC: networks, optimiser, normalisers
     agent = Agent(obs_dim, act_dim, init_log_std=args.init_log_std)
@@ -385,7 +395,7 @@ if __name__ == "__main__":
     # TRY NOT TO MODIFY: start the game
     global_step, train_time, last_eval, exit_code = 0, 0.0, 0, 0
     recent_success = []  # is_success of the last 100 training episodes (goal tasks)
-    raw_obs, _ = envs.reset(seed=args.seed)
+    raw_obs, _ = envs.reset(seed=streams.env_seeds)
     try:
         for iteration in range(1, args.num_iterations + 1):
             t0 = time.time()
@@ -437,7 +447,7 @@ if __name__ == "__main__":
                 last_eval = global_step
                 video_dir = os.path.join(run_dir, "videos") if args.capture_video else None
                 eval_returns, eval_success = evaluate(
-                    agent, obs_rms, args.env_id, args.eval_episodes, args.seed + 10_000, video_dir
+                    agent, obs_rms, args.env_id, streams.eval_seeds(args.eval_episodes), video_dir
                 )
                 writer.add_scalar("eval/episodic_return", eval_returns.mean(), global_step)
                 message = f"step={global_step} eval_return={eval_returns.mean():.1f}"

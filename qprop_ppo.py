@@ -18,25 +18,34 @@ minibatch loss is
     L = -E[r_t(theta) (A_hat_t - eta_t A_bar_t)] - E[eta_t Q_w(s_t, mu_theta(s_t))]
         + beta * KL[pi_old || pi_theta]
 
-eta (``--eta-mode``): ``conservative`` (the paper's main method) eta_t = 1 where
-A_hat_t A_bar_t > 0, else 0; ``aggressive`` eta_t = sign(A_hat_t A_bar_t); ``ones`` eta_t = 1;
-``none`` eta_t = 0, which is exactly PPO-KL (``ppo_kl.py``).
+eta (``--eta-mode``): the optimal eta is Cov(A_hat, A_bar) / Var(A_bar). ``batch-conservative``
+(the default) takes eta = 1 for the whole batch if the batch covariance of A_hat and A_bar is
+positive, else 0; ``batch-aggressive`` takes its sign. One eta per batch keeps eq. 8 unbiased up
+to the finite-batch estimate of that sign. The paper's own modes decide per sample:
+``conservative`` eta_t = 1 where A_hat_t A_bar_t > 0, else 0; ``aggressive``
+eta_t = sign(A_hat_t A_bar_t). They are kept because they are what Gu et al. ran, but eta_t then
+depends on the sampled action, so E[grad log pi eta_t A_bar_t] is no longer the analytic term:
+the per-sample modes are *biased* (tests/test_qprop.py measures it). ``ones``: eta = 1;
+``none``: eta = 0, which is exactly PPO-KL (``ppo_kl.py``).
 
 Normalisation (``--normalization``): PPO normalises the learning signal A_hat - eta A_bar by its
 std sigma. The original Q-Prop code did that and left the analytic term alone (``paper``), which
 multiplies the analytic term's weight by sigma relative to the likelihood-ratio term: the
 gradient is then biased (Tucker et al. 2018 showed that this bias, not the control variate, was
 what beat TRPO). ``unbiased`` divides the analytic term by the same sigma, so that the update is
-a positive multiple of the unbiased estimator of eq. 8.
+a positive multiple of eq. 8's estimator (unbiased with a per-batch or constant eta).
 
 Critic (eq. 6-7): Q_w(s, a) learns off-policy from the replay buffer with the target
 r + gamma (1 - terminated) Q_w'(s', mu_theta(s')), using the current policy's mean at s' (no target
 policy network), and a soft target update after every critic step (eq. 6). Rewards are stored raw
 and scaled at sample time by the same running std that scales GAE's rewards, so critic and GAE
-share one scale. The critic trains on the new data *before* the policy update, so A_bar, eta and
-the analytic term use the updated critic (Q-Prop's Algorithm 1).
+share one scale; the replay stores the action executed (clipped to the bounds). The critic
+trains on the new data *before* the policy update, so A_bar, eta and the analytic term use the
+updated critic (Q-Prop's Algorithm 1).
 
-Environment handling is ``ppo_kl.py``'s: SAME_STEP autoreset, true final observations,
+The likelihood ratio and A_bar keep the sampled action (A_bar must stay linear in the sampled
+action to have mean zero). The rest is ``ppo_kl.py``'s: the KL penalty with its bounded beta, the
+separate gradient clipping of policy and V, SAME_STEP autoreset with true final observations,
 truncation bootstrapped; goal tasks flattened into one input (no hindsight relabelling here).
 """
 
@@ -55,13 +64,14 @@ import torch.nn as nn
 import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
-from common import cli
+from common import cli, seeding
 from common.gae import compute_gae
 from common.her import ReplayBuffer
 from common.normalizer import RunningMeanStd
 
 cli.register_goal_tasks()
 torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
+BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
 
 
 @dataclass
@@ -69,7 +79,7 @@ class Args:
     exp_name: str = os.path.basename(__file__)[: -len(".py")]
     """the name of this experiment (part of the run folder's name)"""
     seed: int = 1
-    """seed of python, numpy, torch and the environments"""
+    """the run's seed: every random stream of the run derives from it (common/seeding.py)"""
     torch_deterministic: bool = True
     """if toggled, `torch.backends.cudnn.deterministic=True`"""
     capture_video: bool = False
@@ -119,15 +129,18 @@ class Args:
     vf_coef: float = 0.5
     """coefficient of the value loss"""
     max_grad_norm: float = 0.5
-    """the maximum norm for gradient clipping"""
+    """the maximum gradient norm, of the policy and of V each (clipped separately)"""
     norm_obs: bool = True
     """normalise observations by running mean and std (saved with the model)"""
     norm_reward: bool = True
     """divide rewards by the running std of the discounted return (GAE and critic alike)"""
 
     # Q-Prop arguments
-    eta_mode: Literal["conservative", "aggressive", "ones", "none"] = "conservative"
-    """control-variate weight eta: per-sample sign test (conservative, aggressive), 1, or none"""
+    eta_mode: Literal[
+        "batch-conservative", "batch-aggressive", "conservative", "aggressive", "ones", "none"
+    ] = "batch-conservative"
+    """control-variate weight eta: from the batch covariance (unbiased), per sample (the paper's,
+    biased), 1, or none (= PPO-KL)"""
     normalization: Literal["paper", "unbiased"] = "unbiased"
     """normalise the learning signal only (paper, biased) or the analytic term with it (unbiased)"""
     buffer_size: int = 1_000_000
@@ -204,6 +217,9 @@ class Agent(nn.Module):
         # state-independent log std
         self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))
 
+    def actor_parameters(self) -> list[nn.Parameter]:
+        return [*self.actor_mean.parameters(), self.actor_logstd]
+
     def get_value(self, x: torch.Tensor) -> torch.Tensor:
         return self.critic(x).squeeze(-1)
 
@@ -213,16 +229,22 @@ class Agent(nn.Module):
 
 
 class QNetwork(nn.Module):
-    """Critic Q_w(s, a): the action joins after the first layer, as in the Q-Prop code."""
+    """Critic Q_w(s, a) of the action the environment executes: ``a`` is clipped to the action
+    bounds first, so Q_w is never asked about actions it was not trained on (the targets, the
+    control variate and the analytic term all see the policy's action clipped). The action
+    joins after the first layer, as in the Q-Prop code."""
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden: int = 100):
+    def __init__(self, obs_dim: int, act_dim: int, hidden: int = 100, low=-np.inf, high=np.inf):
         super().__init__()
         self.fc1 = nn.Linear(obs_dim, hidden)
         self.fc2 = nn.Linear(hidden + act_dim, hidden)
         self.out = nn.Linear(hidden, 1)
+        self.register_buffer("low", torch.as_tensor(low, dtype=torch.float32).expand(act_dim))
+        self.register_buffer("high", torch.as_tensor(high, dtype=torch.float32).expand(act_dim))
 
     def forward(self, x: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
         h = torch.relu(self.fc1(x))
+        a = torch.clamp(a, self.low, self.high)  # the executed action
         return self.out(torch.relu(self.fc2(torch.cat([h, a], -1)))).squeeze(-1)
 
 
@@ -259,7 +281,8 @@ def collect_rollout(
         with torch.no_grad():
             ro["actions"][t] = agent.dist(ro["obs"][t]).sample()
         action = ro["actions"][t].numpy()
-        next_raw_obs, reward, terminated, truncated, infos = envs.step(np.clip(action, low, high))
+        executed = np.clip(action, low, high)  # the critic learns Q of the action executed
+        next_raw_obs, reward, terminated, truncated, infos = envs.step(executed)
         ended = terminated | truncated
         ro["rewards"][t] = torch.as_tensor(reward)
         ro["terminations"][t] = torch.as_tensor(terminated)
@@ -274,7 +297,7 @@ def collect_rollout(
             episode_return, length = float(info["episode"]["r"][i]), int(info["episode"]["l"][i])
             episodes.append((t, i, episode_return, length, success))
         rb.add(
-            obs=raw_obs, actions=action, rewards=reward, next_obs=real_next_obs,
+            obs=raw_obs, actions=executed, rewards=reward, next_obs=real_next_obs,
             terminations=terminated, truncations=truncated,
         )  # fmt: skip
         raw_obs = next_raw_obs
@@ -387,13 +410,28 @@ def control_variate(
 
 
 def compute_eta(advantages: torch.Tensor, cv: torch.Tensor, mode: str) -> torch.Tensor:
-    """Per-sample eta_t from the sign of A_hat_t * A_bar_t, a one-sample estimate of their
-    covariance."""
+    """eta_t for every sample of the batch.
+
+    Q-Prop's optimal eta is Cov(A_hat, A_bar) / Var(A_bar). ``batch-conservative`` (eta = 1 if
+    the batch covariance is positive, else 0) and ``batch-aggressive`` (eta = its sign) fix one
+    eta for the whole batch, which keeps eq. 8 unbiased up to the finite-batch estimate of that
+    sign. The paper's ``conservative`` (eta_t = 1 where A_hat_t A_bar_t > 0) and ``aggressive``
+    (eta_t = sign(A_hat_t A_bar_t)) decide per sample: eta_t then depends on the sampled action,
+    E[grad log pi eta_t A_bar_t] is no longer the analytic term, and the gradient is biased.
+    """
+    if mode.startswith("batch-"):
+        cov = batch_covariance(advantages, cv)
+        eta = 1.0 if cov > 0 else (-1.0 if mode == "batch-aggressive" else 0.0)
+        return torch.full_like(advantages, eta)
     if mode == "conservative":
         return (advantages * cv > 0).float()  # use the control variate only where it correlates
     if mode == "aggressive":
         return torch.sign(advantages * cv)  # flip it where it anti-correlates
     return torch.full_like(advantages, 1.0 if mode == "ones" else 0.0)
+
+
+def batch_covariance(x: torch.Tensor, y: torch.Tensor) -> float:
+    return ((x - x.mean()) * (y - y.mean())).mean().item()
 
 
 def qprop_surrogate(
@@ -469,7 +507,8 @@ def qprop_update(
             loss = pg_loss + args.vf_coef * v_loss
             optimizer.zero_grad()
             loss.backward()
-            nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+            nn.utils.clip_grad_norm_(agent.actor_parameters(), args.max_grad_norm)  # policy and
+            nn.utils.clip_grad_norm_(agent.critic.parameters(), args.max_grad_norm)  # V apart
             optimizer.step()
         epochs_run = epoch + 1
         if args.kl_early_stop is not None:
@@ -490,6 +529,7 @@ def qprop_update(
         beta /= 2
     elif d > args.kl_target * 1.5:
         beta *= 2
+    beta = min(max(beta, BETA_MIN), BETA_MAX)
     return beta, stats
 
 
@@ -497,18 +537,18 @@ def evaluate(
     agent: Agent,
     obs_rms: RunningMeanStd,
     env_id: str,
-    episodes: int,
-    seed: int,
+    seeds: list[int],
     video_dir: str | None = None,
 ):
-    """Run the deterministic policy a = mu_theta(s) with frozen normaliser statistics.
+    """Run the deterministic policy a = mu_theta(s), one episode per reset seed in ``seeds``,
+    with frozen normaliser statistics.
 
     Returns the episodic returns and, on goal tasks, the successes (``is_success`` at the end).
     """
     env = make_env(env_id, video_dir)()
     returns, successes = [], []
-    for episode in range(episodes):
-        obs, _ = env.reset(seed=seed + episode)
+    for seed in seeds:
+        obs, _ = env.reset(seed=seed)
         done = False
         while not done:
             with torch.no_grad():
@@ -532,10 +572,11 @@ if __name__ == "__main__":
     args.num_iterations = args.total_timesteps // args.batch_size
     run_dir, writer = cli.start_run(args)
 
-    # TRY NOT TO MODIFY: seeding
-    random.seed(args.seed)
-    np.random.seed(args.seed)
-    torch.manual_seed(args.seed)
+    # TRY NOT TO MODIFY: seeding, one independent stream per use (common/seeding.py)
+    streams = seeding.streams(args.seed, args.num_envs)
+    random.seed(streams.global_seed)
+    np.random.seed(streams.global_seed)
+    torch.manual_seed(streams.torch_seed)
     torch.backends.cudnn.deterministic = args.torch_deterministic
     torch.set_num_threads(args.torch_threads)
 
@@ -548,23 +589,24 @@ if __name__ == "__main__":
     assert isinstance(envs.single_action_space, gym.spaces.Box), "only continuous actions"
     obs_dim = envs.single_observation_space.shape[0]
     act_dim = envs.single_action_space.shape[0]
-    envs.single_action_space.seed(args.seed)
+    envs.single_action_space.seed(streams.action_space_seed)
 
     # ALGO LOGIC: networks, optimisers, normalisers, replay
     agent = Agent(obs_dim, act_dim, init_log_std=args.init_log_std)
     optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
     obs_rms = RunningMeanStd((obs_dim,))
-    qf = QNetwork(obs_dim, act_dim, args.critic_hidden)
+    low, high = envs.single_action_space.low, envs.single_action_space.high
+    qf = QNetwork(obs_dim, act_dim, args.critic_hidden, low=low, high=high)
     qf_target = copy.deepcopy(qf)
     q_optimizer = optim.Adam(qf.parameters(), lr=args.critic_learning_rate, fused=True)
-    rb = ReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, seed=args.seed)
+    rb = ReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, seed=streams.replay_seed)
     ret_rms, running_return = RunningMeanStd(()), np.zeros(args.num_envs)  # reward scaling
     beta = args.beta_init
 
     # TRY NOT TO MODIFY: start the game
     global_step, train_time, last_eval, exit_code = 0, 0.0, 0, 0
     recent_success = []  # is_success of the last 100 training episodes (goal tasks)
-    raw_obs, _ = envs.reset(seed=args.seed)
+    raw_obs, _ = envs.reset(seed=streams.env_seeds)
     try:
         for iteration in range(1, args.num_iterations + 1):
             t0 = time.time()
@@ -618,7 +660,7 @@ if __name__ == "__main__":
                 b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
                 b["eta"] = compute_eta(b["advantages"], b["cv"], args.eta_mode)
                 writer.add_scalar("qprop/eta", b["eta"].mean().item(), global_step)
-                cov = (b["advantages"] * b["cv"]).mean().item()
+                cov = batch_covariance(b["advantages"], b["cv"])
                 writer.add_scalar("qprop/cov", cov, global_step)
 
             # ALGO LOGIC: the Q-Prop update (eq. 8 inside eq. 5)
@@ -643,7 +685,7 @@ if __name__ == "__main__":
                 last_eval = global_step
                 video_dir = os.path.join(run_dir, "videos") if args.capture_video else None
                 eval_returns, eval_success = evaluate(
-                    agent, obs_rms, args.env_id, args.eval_episodes, args.seed + 10_000, video_dir
+                    agent, obs_rms, args.env_id, streams.eval_seeds(args.eval_episodes), video_dir
                 )
                 writer.add_scalar("eval/episodic_return", eval_returns.mean(), global_step)
                 message = f"step={global_step} eval_return={eval_returns.mean():.1f}"

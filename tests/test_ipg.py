@@ -155,10 +155,13 @@ def test_replayed_transitions_never_cross_a_reset_and_keep_the_true_final_observ
     np.testing.assert_array_equal(rb.desired_goal[:n, :, 0], rb.obs[:n, :, 0])
     ends = ro["episode_ends"].numpy().astype(bool)
     truncated = ends & ~ro["terminations"].numpy().astype(bool)
-    assert truncated.any() and np.all(
-        rb.next_obs[:n][truncated][:, 1] == 5
-    )  # the true final observation
+    assert truncated.any()
+    assert np.all(rb.next_obs[:n][truncated][:, 1] == 5)  # the true final observation
     assert np.all(rb.obs[1:n][ends[:-1]][:, 1] == 0)  # the row after an end starts a new episode
+    # the critic's replay holds the action executed (clipped to [-1, 1]), not the sampled one
+    sampled = ro["actions"].numpy()
+    assert np.any(np.abs(sampled) > 1), "no action outside the bounds: the check would be vacuous"
+    np.testing.assert_array_equal(rb.actions[:n], np.clip(sampled, -1.0, 1.0))
 
 
 def test_critic_targets_are_clipped_to_the_return_range():
@@ -183,3 +186,90 @@ def test_critic_targets_are_clipped_to_the_return_range():
     assert abs(clipped - 0.5 * (q**2).mean().item()) < 1e-5
     raw, _ = ipg_her.critic_step(qf, qf_target, optimizer, agent, d, 0.98, 0.05)
     assert raw > clipped + 1.0
+
+
+class ScaledQ(torch.nn.Module):
+    """The critic of a task whose rewards are all multiplied by c."""
+
+    def __init__(self, qf, c):
+        super().__init__()
+        self.qf, self.c = qf, c
+
+    def forward(self, x, a):
+        return self.c * self.qf(x, a)
+
+
+def policy_after_one_update(c, nu, use_cv, normalization, q_bar="sample"):
+    """Actor parameters after one ``ipg_update`` on a fixed batch whose rewards (advantages,
+    returns, critic) are scaled by c."""
+    torch.manual_seed(0)
+    agent, qf = ipg_her.Agent(5, 2, hidden=32), ipg_her.QNetwork(5, 2, 32)
+    b = random_batch(128, 5, 2, agent)
+    b = {**b, "advantages": c * b["advantages"], "returns": c * b["returns"]}
+    q = ScaledQ(qf, c)
+    if use_cv:
+        b["cv"] = ipg_her.control_variate(q, agent, b["obs"], b["actions"])
+    states = torch.randn(64, 5, generator=torch.Generator().manual_seed(3))
+    args = ipg_her.Args(nu=nu, use_cv=use_cv, normalization=normalization, q_bar=q_bar,
+                        num_minibatches=2, update_epochs=2)  # fmt: skip
+    optimizer = torch.optim.Adam(agent.parameters(), lr=1e-3)
+    torch.manual_seed(1)
+    ipg_her.ipg_update(agent, optimizer, b, 1.0, args, q, lambda: states)
+    return torch.cat([p.detach().flatten() for p in agent.actor_parameters()])
+
+
+@pytest.mark.parametrize("use_cv", [False, True])
+@pytest.mark.parametrize("nu", [0.2, 0.5, 0.8])
+def test_nu_means_eq_10_nu_whatever_the_reward_scale(nu, use_cv):
+    """Rewards x 10 (so advantages, returns and Q_w x 10) leave the policy update unchanged with
+    ``unbiased`` normalisation; with ``paper`` the off-policy term's weight grows with the scale."""
+    base = policy_after_one_update(1.0, nu, use_cv, "unbiased")
+    torch.testing.assert_close(policy_after_one_update(10.0, nu, use_cv, "unbiased"), base)
+    paper = policy_after_one_update(1.0, nu, use_cv, "paper")
+    assert not torch.allclose(policy_after_one_update(10.0, nu, use_cv, "paper"), paper)
+
+
+@pytest.mark.parametrize("use_cv", [False, True])
+@pytest.mark.parametrize("nu", [0.2, 0.5, 0.8])
+def test_update_direction_is_a_positive_multiple_of_eq_10(nu, use_cv):
+    """One plain SGD step (lr 1, one minibatch, no KL, no clipping) moves the policy by exactly
+    (1/sigma) [(1 - nu) g_on + b g_off], g_on the likelihood-ratio gradient of the centred
+    signal, g_off the gradient of -Q_w(s, mu(s)), b = nu (or 1 with the control variate)."""
+    torch.manual_seed(0)
+    agent, qf = ipg_her.Agent(5, 2, hidden=32), ipg_her.QNetwork(5, 2, 32)
+    b = random_batch(64, 5, 2, agent)
+    b["advantages"] = 7.0 * b["advantages"]  # sigma far from 1
+    if use_cv:
+        b["cv"] = ipg_her.control_variate(qf, agent, b["obs"], b["actions"])
+    raw = b["advantages"] - b["cv"] if use_cv else b["advantages"]
+    sigma = raw.std()
+
+    def grad(loss):
+        grads = torch.autograd.grad(loss, agent.actor_parameters(), materialize_grads=True)
+        return torch.cat([g.flatten() for g in grads])
+
+    ratio = (agent.dist(b["obs"]).log_prob(b["actions"]).sum(-1) - b["logprobs"]).exp()
+    g_on = grad(-(ratio * (raw - raw.mean())).mean())
+    g_off = grad(-qf(b["obs"], agent.actor_mean(b["obs"])).mean())
+    expected = ((1 - nu) * g_on + (1.0 if use_cv else nu) * g_off) / sigma
+
+    args = ipg_her.Args(nu=nu, use_cv=use_cv, q_bar="mean", off_policy_states="batch",
+                        num_minibatches=1, update_epochs=1, vf_coef=0.0,
+                        max_grad_norm=1e9)  # fmt: skip
+    before = torch.cat([p.detach().flatten() for p in agent.actor_parameters()])
+    ipg_her.ipg_update(agent, torch.optim.SGD(agent.parameters(), lr=1.0), b, 0.0, args, qf)
+    after = torch.cat([p.detach().flatten() for p in agent.actor_parameters()])
+    torch.testing.assert_close(before - after, expected, rtol=1e-4, atol=1e-6)
+
+
+def test_replay_rewards_are_scaled_like_gae_rewards():
+    """sample_replay multiplies the stored (raw) rewards by the reward scale GAE's rewards got."""
+    batches = []
+    for scale in (1.0, 0.25):
+        rb = ipg_her.ReplayBuffer(100, 1, 2, 1, seed=0)
+        for t in range(10):
+            rb.add(np.full((1, 2), t), np.zeros((1, 1)), np.array([t - 5.0]),
+                   np.full((1, 2), t + 1), np.zeros(1), np.array([t == 9]))  # fmt: skip
+        batches.append(ipg_her.sample_replay(rb, InputNormalizer(2, 0), scale, 32))
+    torch.testing.assert_close(batches[1]["rewards"], 0.25 * batches[0]["rewards"])
+    assert batches[0]["rewards"].abs().sum() > 0

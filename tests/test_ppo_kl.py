@@ -1,10 +1,13 @@
 """ppo_kl.py: smoke runs on Hopper-v5 and FetchReach-v4, autoreset handling, seeding, bad input."""
 
+import runpy
+import sys
+
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from conftest import assert_clean_error, run_dirs, run_script, scalars
+from conftest import ROOT, assert_clean_error, random_batch, run_dirs, run_script, scalars
 from toy_envs import CountingEnv
 
 import ppo_kl
@@ -62,7 +65,7 @@ def test_smoke_logs_tags_and_saved_model_evaluates(tmp_path, env_id, flags):
     assert obs_rms.count > 0
     agent = ppo_kl.Agent(obs_rms.mean.shape[0], ckpt["agent"]["actor_logstd"].shape[1])
     agent.load_state_dict(ckpt["agent"])
-    returns, successes = ppo_kl.evaluate(agent, obs_rms, env_id, episodes=2, seed=0)
+    returns, successes = ppo_kl.evaluate(agent, obs_rms, env_id, seeds=[0, 1])
     assert len(returns) == 2 and np.all(np.isfinite(returns))
     assert len(successes) == (2 if env_id.startswith("Fetch") else 0)
 
@@ -190,3 +193,49 @@ def test_an_interrupted_run_keeps_its_logs_and_saves_its_model(tmp_path):
     (run_dir,) = run_dirs(tmp_path)
     assert (run_dir / "model.pt").exists()
     assert len(scalars(run_dir)["losses/beta"]) >= 1
+
+
+@pytest.mark.parametrize("beta, kl_target, bound", [(1 / 35, 1e6, 1 / 35), (35.0, 1e-12, 35.0)])
+def test_beta_stays_in_dppo_bounds(beta, kl_target, bound):
+    """A calm update halves beta and a violent one doubles it, but never past [1/35, 35]."""
+    torch.manual_seed(0)
+    agent = ppo_kl.Agent(5, 2)
+    b = random_batch(64, 5, 2, agent)
+    args = ppo_kl.Args(num_minibatches=2, update_epochs=1, kl_target=kl_target)
+    optimizer = torch.optim.Adam(agent.parameters(), lr=3e-4)
+    new_beta, _ = ppo_kl.ppo_kl_update(agent, optimizer, b, beta, args)
+    assert new_beta == pytest.approx(bound)
+
+
+def reset_seeds(monkeypatch, tmp_path, seed: int) -> list[int]:
+    """Every seed a tiny ppo_kl.py run passes to an environment's reset, in order: the two
+    training envs first, then two evaluations of two episodes."""
+    seen = []
+    original = gym.Env.reset
+
+    def recording_reset(self, *, seed=None, options=None):
+        if seed is not None:
+            seen.append(seed)
+        return original(self, seed=seed, options=options)
+
+    argv = ["ppo_kl.py", "--seed", str(seed), "--log-dir", str(tmp_path / str(seed)),
+            "--num-envs", "2", "--num-steps", "64", "--total-timesteps", "256",
+            "--num-minibatches", "2", "--update-epochs", "1", "--eval-freq", "128",
+            "--eval-episodes", "2"]  # fmt: skip
+    with monkeypatch.context() as patch, pytest.raises(SystemExit) as exit_info:
+        patch.setattr(gym.Env, "reset", recording_reset)
+        patch.setattr(sys, "argv", argv)
+        runpy.run_path(str(ROOT / "ppo_kl.py"), run_name="__main__")
+    assert exit_info.value.code == 0
+    return seen
+
+
+def test_runs_with_different_seeds_share_no_reset_seed(monkeypatch, tmp_path):
+    """Seed 1's second env must not replay seed 2's first, nor an evaluation a training reset."""
+    one, two = (reset_seeds(monkeypatch, tmp_path, s) for s in (1, 2))
+    assert len(one) == len(two) == 2 + 2 * 2
+    assert not set(one) & set(two)
+    train, evaluations = one[:2], one[2:]
+    assert not set(train) & set(evaluations)
+    assert evaluations[:2] != evaluations[2:], "each evaluation plays new episodes"
+    assert reset_seeds(monkeypatch, tmp_path / "again", 1) == one  # and the same seed repeats

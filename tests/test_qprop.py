@@ -11,6 +11,7 @@ from conftest import assert_clean_error, random_batch, run_dirs, run_script, sca
 
 import ppo_kl
 import qprop_ppo
+from common.normalizer import RunningMeanStd
 
 
 def test_eta_mode_none_update_equals_ppo_kl_update():
@@ -83,9 +84,9 @@ def linear_gaussian_problem(theta0=0.3, theta1=0.5, sigma=0.7, k=1.5):
     return agent, QuadraticQ(k), true_grad
 
 
-def policy_gradient_estimates(agent, qf, eta_value, batches=3000, n=32, seed=0):
+def policy_gradient_estimates(agent, qf, eta_mode, batches=3000, n=32, seed=0):
     """Per-batch gradient estimates (bias, weight, log sigma) of J from qprop_surrogate, at
-    theta = theta_old."""
+    theta = theta_old, with eta chosen by ``compute_eta`` as ``qprop_ppo.py`` chooses it."""
     g = torch.Generator().manual_seed(seed)
     estimates = []
     for _ in range(batches):
@@ -99,7 +100,7 @@ def policy_gradient_estimates(agent, qf, eta_value, batches=3000, n=32, seed=0):
             )  # exact V(s) = E_a[Q(s, a)]
             adv = qf(s, a) - value  # A_hat, exact here
         cv = qprop_ppo.control_variate(qf, agent, s, a)
-        eta = torch.full((n,), float(eta_value))
+        eta = qprop_ppo.compute_eta(adv, cv, eta_mode)
         loss = qprop_ppo.qprop_surrogate(
             agent, qf, agent.dist(s), s, a, logprobs, adv - eta * cv, eta
         )
@@ -112,8 +113,8 @@ def policy_gradient_estimates(agent, qf, eta_value, batches=3000, n=32, seed=0):
 
 def test_qprop_estimator_is_unbiased_and_has_lower_variance_than_likelihood_ratio():
     agent, qf, true_grad = linear_gaussian_problem()
-    qprop = policy_gradient_estimates(agent, qf, eta_value=1.0)
-    lr = policy_gradient_estimates(agent, qf, eta_value=0.0)
+    qprop = policy_gradient_estimates(agent, qf, "ones")
+    lr = policy_gradient_estimates(agent, qf, "none")
     for est in (qprop, lr):
         se = est.std(0) / np.sqrt(est.shape[0])
         assert torch.all((est.mean(0) - true_grad).abs() < 4 * se + 1e-6), (
@@ -123,6 +124,39 @@ def test_qprop_estimator_is_unbiased_and_has_lower_variance_than_likelihood_rati
         )
     # the control variate removes the first-order part of Q: less variance in the mean's parameters
     assert torch.all(qprop.var(0)[:2] < 0.75 * lr.var(0)[:2]), (qprop.var(0), lr.var(0))
+
+
+@pytest.mark.parametrize(
+    "eta_mode, unbiased",
+    [
+        ("batch-conservative", True),
+        ("batch-aggressive", True),
+        ("conservative", False),  # the paper's per-sample modes: eta_t depends on the action
+        ("aggressive", False),
+    ],
+)
+def test_which_eta_modes_are_unbiased(eta_mode, unbiased):
+    """The docstring's claim, measured: one eta per batch keeps eq. 8 unbiased; eta_t chosen per
+    sample from the sign of A_hat_t A_bar_t does not (its bias is many standard errors)."""
+    agent, qf, true_grad = linear_gaussian_problem()
+    est = policy_gradient_estimates(agent, qf, eta_mode)
+    z = (est.mean(0) - true_grad) / (est.std(0) / np.sqrt(est.shape[0]))
+    if unbiased:
+        assert torch.all(z.abs() < 4), (eta_mode, z)
+    else:
+        assert torch.any(z.abs() > 6), (eta_mode, z)
+
+
+def test_control_variate_is_the_first_order_taylor_term_of_the_critic():
+    """A_bar = grad_a Q(s, a)|_{a = mu} . (a - mu) (eq. 9), against the closed form for
+    Q = -(a - k s)^2, where grad_a Q at mu is -2 (mu - k s). (A zero mean alone would hold for
+    any g . (a - mu).)"""
+    agent, qf, _ = linear_gaussian_problem()
+    s, a = torch.randn(64, 1), torch.randn(64, 1)
+    with torch.no_grad():
+        mu = agent.actor_mean(s)
+    expected = (-2 * (mu - qf.k * s) * (a - mu)).sum(-1)
+    torch.testing.assert_close(qprop_ppo.control_variate(qf, agent, s, a), expected)
 
 
 @pytest.mark.parametrize("mistake", ["flipped sign", "no analytic term"])
@@ -139,7 +173,7 @@ def test_a_wrong_control_variate_or_missing_analytic_term_is_detected(monkeypatc
             return surrogate(*a[:7], torch.zeros_like(a[7]))
 
         monkeypatch.setattr(qprop_ppo, "qprop_surrogate", without_analytic_term)
-    est = policy_gradient_estimates(agent, copy.deepcopy(qf), 1.0, batches=1000)
+    est = policy_gradient_estimates(agent, copy.deepcopy(qf), "ones", batches=1000)
     se = est.std(0) / np.sqrt(est.shape[0])
     assert torch.any((est.mean(0) - true_grad).abs() > 4 * se), mistake
 
@@ -197,6 +231,10 @@ def test_normalization_modes(normalization):
 def test_eta_modes():
     adv, cv = torch.tensor([1.0, -2.0, 3.0, -1.0]), torch.tensor([2.0, -1.0, -1.0, 0.5])
     assert qprop_ppo.compute_eta(adv, cv, "conservative").tolist() == [1, 1, 0, 0]
+    cov = qprop_ppo.batch_covariance(adv, cv)  # positive here
+    assert cov > 0 and qprop_ppo.compute_eta(adv, cv, "batch-conservative").tolist() == [1] * 4
+    assert qprop_ppo.compute_eta(adv, -cv, "batch-conservative").tolist() == [0] * 4
+    assert qprop_ppo.compute_eta(adv, -cv, "batch-aggressive").tolist() == [-1] * 4
     assert qprop_ppo.compute_eta(adv, cv, "aggressive").tolist() == [1, 1, -1, -1]
     assert qprop_ppo.compute_eta(adv, cv, "ones").tolist() == [1, 1, 1, 1]
     assert qprop_ppo.compute_eta(adv, cv, "none").tolist() == [0, 0, 0, 0]
@@ -254,3 +292,67 @@ def test_bad_input_fails_with_one_clear_line_and_no_run_folder(tmp_path):
     result = run_script("qprop_ppo.py", tmp_path, "--total-timesteps", "0", timeout=60)
     assert_clean_error(result, "--total-timesteps")
     assert not (tmp_path.exists() and run_dirs(tmp_path)), "no run folder for rejected input"
+
+
+class ScaledQ(nn.Module):
+    """The critic of a task whose rewards are all multiplied by c."""
+
+    def __init__(self, qf, c):
+        super().__init__()
+        self.qf, self.c = qf, c
+
+    def forward(self, x, a):
+        return self.c * self.qf(x, a)
+
+
+def policy_after_one_update(c, eta_mode, normalization):
+    torch.manual_seed(0)
+    agent, qf = qprop_ppo.Agent(5, 2), qprop_ppo.QNetwork(5, 2)
+    b = random_batch(128, 5, 2, agent)
+    b = {**b, "advantages": c * b["advantages"], "returns": c * b["returns"]}
+    q = ScaledQ(qf, 20.0 * c)  # a critic large enough that the analytic term matters
+    b["cv"] = qprop_ppo.control_variate(q, agent, b["obs"], b["actions"])
+    b["eta"] = qprop_ppo.compute_eta(b["advantages"], b["cv"], eta_mode)
+    args = qprop_ppo.Args(eta_mode=eta_mode, normalization=normalization, num_minibatches=2,
+                          update_epochs=2)  # fmt: skip
+    optimizer = torch.optim.Adam(agent.parameters(), lr=1e-3)
+    torch.manual_seed(1)
+    qprop_ppo.qprop_update(agent, optimizer, b, 1.0, args, q)
+    return torch.cat([p.detach().flatten() for p in agent.actor_parameters()])
+
+
+@pytest.mark.parametrize("eta_mode", ["batch-aggressive", "ones", "conservative"])
+def test_update_is_the_same_whatever_the_reward_scale(eta_mode):
+    """Rewards x 10 (advantages, returns, Q_w x 10) leave the policy update unchanged with
+    ``unbiased`` normalisation (V's larger gradient is clipped apart from the policy's); with
+    ``paper`` the analytic term's weight grows with the scale."""
+    base = policy_after_one_update(1.0, eta_mode, "unbiased")
+    torch.testing.assert_close(policy_after_one_update(10.0, eta_mode, "unbiased"), base)
+    paper = policy_after_one_update(1.0, eta_mode, "paper")
+    assert not torch.allclose(policy_after_one_update(10.0, eta_mode, "paper"), paper)
+
+
+def test_replay_holds_the_executed_action():
+    """The critic learns Q of the action the environment executed (clipped), while the rollout
+    keeps the sampled one for the likelihood ratio and A_bar."""
+    import gymnasium as gym
+    from toy_envs import CountingEnv
+
+    torch.manual_seed(0)
+    envs = gym.vector.SyncVectorEnv(
+        [lambda: gym.wrappers.RecordEpisodeStatistics(CountingEnv(limit=5)) for _ in range(2)],
+        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
+    )
+    agent = qprop_ppo.Agent(2, 1)
+    with torch.no_grad():
+        agent.actor_logstd.fill_(0.5)
+    rb = qprop_ppo.ReplayBuffer(1000, 2, 2, 1, seed=0)
+    raw_obs, _ = envs.reset(seed=0)
+    ro, _, _ = qprop_ppo.collect_rollout(envs, agent, RunningMeanStd((2,)), raw_obs, 30, rb)
+    sampled = ro["actions"].numpy()
+    assert np.any(np.abs(sampled) > 1), "no action outside the bounds: the check would be vacuous"
+    np.testing.assert_array_equal(rb.actions[:30], np.clip(sampled, -1.0, 1.0))
+    torch.testing.assert_close(
+        qprop_ppo.sample_replay(rb, RunningMeanStd((2,)), 0.5, 16)["rewards"],
+        torch.full((16,), 0.5),
+    )
