@@ -64,28 +64,32 @@ import torch.nn as nn
 import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
-from common import cli, seeding
+from common import checkpoint, cli, seeding
 from common.gae import compute_gae
 from common.her import ReplayBuffer
 from common.normalizer import RunningMeanStd
 
 cli.register_goal_tasks()
 torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
+SCRIPT = os.path.basename(__file__)[: -len(".py")]
 BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
 
 
 @dataclass
 class Args:
-    exp_name: str = os.path.basename(__file__)[: -len(".py")]
+    exp_name: str = SCRIPT
     """the name of this experiment (part of the run folder's name)"""
     seed: int = 1
     """the run's seed: every random stream of the run derives from it (common/seeding.py)"""
     torch_deterministic: bool = True
-    """if toggled, `torch.backends.cudnn.deterministic=True`"""
+    """sets `torch.backends.cudnn.deterministic` (CleanRL's flag; it only matters on a GPU: CPU
+    runs are deterministic for a given seed either way)"""
     capture_video: bool = False
     """record the evaluation episodes as videos into the run folder (needs moviepy)"""
     save_model: bool = False
-    """save the final weights and observation-normaliser state into the run folder"""
+    """save a checkpoint (weights, normaliser, args) as model.pt in the run folder at the end"""
+    save_freq: int = 0
+    """with --save-model, also save every this many environment steps (0: only at the end)"""
     log_dir: str = "runs"
     """parent folder of the run folders"""
     eval_freq: int = 100_000
@@ -158,19 +162,11 @@ class Args:
     learning_starts: int = 1000
     """environment steps before the first critic step; the control variate starts with it"""
 
-    # to be filled in runtime
-    batch_size: int = 0
-    """the batch size (computed in runtime)"""
-    minibatch_size: int = 0
-    """the mini-batch size (computed in runtime)"""
-    num_iterations: int = 0
-    """the number of iterations (computed in runtime)"""
-
 
 def check_args(args: Args) -> None:
     """The checks every script shares (``common/cli.py``), then the critic's."""
     cli.check_common(args)
-    cli.check_positive(args, "critic_batch_size", "buffer_size")
+    cli.check_positive(args, "critic_batch_size", "buffer_size", "critic_learning_rate")
     if not 0.0 < args.tau <= 1.0:
         cli.fail(f"--tau must be in (0, 1], got {args.tau}")
     if args.critic_steps < 0 or args.learning_starts < 0:
@@ -539,9 +535,10 @@ def evaluate(
     env_id: str,
     seeds: list[int],
     video_dir: str | None = None,
+    stochastic: bool = False,
 ):
-    """Run the deterministic policy a = mu_theta(s), one episode per reset seed in ``seeds``,
-    with frozen normaliser statistics.
+    """Run the deterministic policy a = mu_theta(s) (``stochastic``: a ~ pi_theta), one episode
+    per reset seed in ``seeds``, with frozen normaliser statistics.
 
     Returns the episodic returns and, on goal tasks, the successes (``is_success`` at the end).
     """
@@ -552,7 +549,8 @@ def evaluate(
         done = False
         while not done:
             with torch.no_grad():
-                action = agent.actor_mean(torch.as_tensor(obs_rms.normalize(obs)[None])).numpy()[0]
+                x = torch.as_tensor(obs_rms.normalize(obs)[None])
+                action = (agent.dist(x).sample() if stochastic else agent.actor_mean(x)).numpy()[0]
             obs, _, terminated, truncated, info = env.step(
                 np.clip(action, env.action_space.low, env.action_space.high)
             )
@@ -567,9 +565,8 @@ def evaluate(
 if __name__ == "__main__":
     args = cli.parse_args(Args)
     check_args(args)
-    args.batch_size = args.num_envs * args.num_steps
-    args.minibatch_size = args.batch_size // args.num_minibatches
-    args.num_iterations = args.total_timesteps // args.batch_size
+    batch_size = args.num_envs * args.num_steps
+    num_iterations = args.total_timesteps // batch_size
     run_dir, writer = cli.start_run(args)
 
     # TRY NOT TO MODIFY: seeding, one independent stream per use (common/seeding.py)
@@ -604,14 +601,27 @@ if __name__ == "__main__":
     beta = args.beta_init
 
     # TRY NOT TO MODIFY: start the game
-    global_step, train_time, last_eval, exit_code = 0, 0.0, 0, 0
+    global_step, train_time, last_eval, last_save, exit_code = 0, 0.0, 0, 0, 0
+    eval_seeds, eval_returns, eval_success = [], np.zeros(0), np.zeros(0)
+    model_path = os.path.join(run_dir, "model.pt")
+    save = lambda: checkpoint.save(
+        model_path,
+        script=SCRIPT,
+        args=args,
+        last_eval_seeds=eval_seeds,
+        agent=agent,
+        obs_rms=obs_rms,
+        qf=qf,
+        qf_target=qf_target,
+    )
+    progress, latest = cli.Progress(args.total_timesteps), ""
     recent_success = []  # is_success of the last 100 training episodes (goal tasks)
     raw_obs, _ = envs.reset(seed=streams.env_seeds)
     try:
-        for iteration in range(1, args.num_iterations + 1):
+        for iteration in range(1, num_iterations + 1):
             t0 = time.time()
             if args.anneal_lr:
-                frac = 1.0 - (iteration - 1.0) / args.num_iterations
+                frac = 1.0 - (iteration - 1.0) / num_iterations
                 optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
             # ALGO LOGIC: rollout
@@ -627,7 +637,7 @@ if __name__ == "__main__":
                 if success is not None:
                     recent_success = (recent_success + [success])[-100:]
                     writer.add_scalar("charts/success_rate", np.mean(recent_success), step)
-            global_step += args.batch_size
+            global_step += batch_size
 
             # ALGO LOGIC: one reward scale for GAE and the critic
             reward_scale = 1.0
@@ -681,33 +691,41 @@ if __name__ == "__main__":
 
             # TRY NOT TO MODIFY: evaluate the deterministic policy
             due = args.eval_freq > 0 and global_step - last_eval >= args.eval_freq
-            if iteration == args.num_iterations or due:
-                last_eval = global_step
-                video_dir = os.path.join(run_dir, "videos") if args.capture_video else None
+            if iteration == num_iterations or due:
+                last_eval, eval_seeds = global_step, streams.eval_seeds(args.eval_episodes)
+                video_dir = os.path.join(run_dir, "videos", f"step{global_step}")
                 eval_returns, eval_success = evaluate(
-                    agent, obs_rms, args.env_id, streams.eval_seeds(args.eval_episodes), video_dir
+                    agent,
+                    obs_rms,
+                    args.env_id,
+                    eval_seeds,
+                    video_dir if args.capture_video else None,
                 )
                 writer.add_scalar("eval/episodic_return", eval_returns.mean(), global_step)
                 message = f"step={global_step} eval_return={eval_returns.mean():.1f}"
                 if len(eval_success):
                     writer.add_scalar("eval/success_rate", eval_success.mean(), global_step)
                     message += f" eval_success={eval_success.mean():.2f}"
-                print(f"{message} SPS={int(global_step / train_time)}", flush=True)
-    except KeyboardInterrupt:
-        print(
-            f"interrupted at global step {global_step}; logs are kept in {run_dir}", file=sys.stderr
-        )
-        exit_code = 130
+                progress.print(f"{message} SPS={int(global_step / train_time)}")
+            if args.save_model and args.save_freq and global_step - last_save >= args.save_freq:
+                last_save = global_step
+                save()
+            if episodes:  # the latest training figure: success on goal tasks, else return
+                latest = f"success {np.mean(recent_success):.2f}" if recent_success else ""
+                latest = latest or f"return {episodes[-1][2]:.1f}"
+            progress.update(global_step, int(global_step / train_time), latest)
+    except KeyboardInterrupt as interrupt:
+        message = f"interrupted at global step {global_step}; logs are kept in {run_dir}"
+        progress.print(message, file=sys.stderr)
+        exit_code = cli.exit_code(interrupt)
     except FloatingPointError as e:
         print(f"error: {e}", file=sys.stderr)
         exit_code = 1
     finally:
         if args.save_model:
-            model_path = os.path.join(run_dir, "model.pt")
-            checkpoint = {"agent": agent.state_dict(), "obs_rms": obs_rms.state_dict(),
-                          "qf": qf.state_dict()}  # fmt: skip
-            torch.save({**checkpoint, "args": vars(args)}, model_path)
-            print(f"model saved to {model_path}")
+            save()
+            progress.print(f"model saved to {model_path}")
         envs.close()
         writer.close()
+    progress.close(global_step, eval_returns, eval_success)
     sys.exit(exit_code)

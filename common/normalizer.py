@@ -80,3 +80,7 @@ class InputNormalizer:
 
     def state_dict(self) -> dict:
         return {"obs_rms": self.obs_rms.state_dict(), "goal_rms": self.goal_rms.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.obs_rms.load_state_dict(state["obs_rms"])
+        self.goal_rms.load_state_dict(state["goal_rms"])

@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import gymnasium as gym
+import numpy as np
 import pytest
 import torch
 
@@ -68,3 +70,18 @@ def random_batch(n: int, obs_dim: int, act_dim: int, agent, seed: int = 0) -> di
             "advantages": torch.randn(n, generator=g),
             "returns": torch.randn(n, generator=g),
         }
+
+
+def assert_saved_policy_replays_last_evaluation(run_dir: Path, env_id: str) -> None:
+    """The run's model.pt, loaded by ``common.evaluate.load_policy`` alone, replays the run's last
+    evaluation to the same mean return, and acts on raw observations (a Dict on goal tasks)."""
+    from common.evaluate import load_policy
+
+    policy = load_policy(str(run_dir))
+    returns, _ = policy.evaluate(policy.last_eval_seeds)
+    last = scalars(run_dir)["eval/episodic_return"][-1][1]
+    assert len(returns) > 0 and np.float32(returns.mean()) == np.float32(last), (returns, last)
+    env = gym.make(env_id)
+    obs, _ = env.reset(seed=0)
+    action = policy(obs)
+    assert action.shape == env.action_space.shape and env.action_space.contains(action)

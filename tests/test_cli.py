@@ -1,6 +1,7 @@
 """common/cli.py and each script's own argument checks, in-process: bad input exits with one
 ``error:`` line naming the problem, before any run folder exists."""
 
+import numpy as np
 import pytest
 
 import ipg_her
@@ -78,3 +79,47 @@ def test_checks_do_not_modify_args():
     before = vars(args).copy()
     ipg_her.check_args(args, ["--env-id", "Hopper-v5"])
     assert vars(args) == before
+
+
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["--env-id", "CartPole-v1"], "Discrete actions"),
+        (["--env-id", "FrozenLake-v1"], "Discrete actions"),
+        (["--env-id", "FrankaKitchen-v1"], "observations are not supported"),
+        (["--env-id", "CarRacing-v3"], "not installed"),
+        (["--env-id", "Hopper-v2"], "mujoco-py"),
+        (["--learning-rate", "-1"], "--learning-rate must be positive"),
+        (["--seed", "-1"], "--seed must be non-negative"),
+        (["--save-freq", "-5"], "--save-freq"),
+        (["--batch-size", "64"], "--batch-size"),  # computed, not a flag
+    ],
+)
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_tasks_and_values_the_scripts_cannot_use(capsys, script, argv, needle):
+    assert needle in refused(capsys, script, *argv)
+
+
+@pytest.mark.parametrize("script", ["qprop_ppo", "ipg_her"])
+def test_critic_learning_rate_must_be_positive(capsys, script):
+    assert "--critic-learning-rate" in refused(capsys, script, "--critic-learning-rate", "-1")
+
+
+def test_an_uncreatable_log_dir_is_refused_and_run_folders_are_unique(capsys, tmp_path):
+    args = cli.parse_args(ppo_kl.Args, ["--log-dir", "/proc/no/such/dir"])
+    with pytest.raises(SystemExit):
+        cli.start_run(args)
+    assert capsys.readouterr().err.startswith("error: cannot create the run folder")
+    args = cli.parse_args(ppo_kl.Args, ["--log-dir", str(tmp_path)])
+    folders = [cli.start_run(args) for _ in range(3)]  # the same second, the same seed
+    for _, writer in folders:
+        writer.close()
+    assert len({run_dir for run_dir, _ in folders}) == 3
+
+
+def test_progress_line_is_silent_when_output_is_not_a_terminal(capsys):
+    progress = cli.Progress(1000)
+    progress.update(500, 100, "return 3.0")
+    assert capsys.readouterr().out == ""
+    progress.close(1000, np.array([1.0, 3.0]), np.array([1.0, 0.0]))
+    assert "last evaluation: return 2.0, success 0.50" in capsys.readouterr().out

@@ -3,7 +3,14 @@
 import numpy as np
 import pytest
 import torch
-from conftest import assert_clean_error, random_batch, run_dirs, run_script, scalars
+from conftest import (
+    assert_clean_error,
+    assert_saved_policy_replays_last_evaluation,
+    random_batch,
+    run_dirs,
+    run_script,
+    scalars,
+)
 
 import ipg_her
 import ppo_kl
@@ -119,7 +126,8 @@ def test_smoke(tmp_path, env_id, flags):
     assert expected <= set(tags), expected - set(tags)
     assert len(tags["losses/critic_loss"]) >= 2 and len(tags["eval/episodic_return"]) >= 2
     ckpt = torch.load(run_dir / "model.pt", weights_only=False)
-    assert {"agent", "qf", "normalizer"} <= set(ckpt)
+    assert {"agent", "qf", "qf_target", "normalizer", "args", "format_version"} <= set(ckpt)
+    assert_saved_policy_replays_last_evaluation(run_dir, env_id)
 
 
 def test_bad_input_fails_with_one_clear_line_and_no_run_folder(tmp_path):
@@ -273,3 +281,12 @@ def test_replay_rewards_are_scaled_like_gae_rewards():
         batches.append(ipg_her.sample_replay(rb, InputNormalizer(2, 0), scale, 32))
     torch.testing.assert_close(batches[1]["rewards"], 0.25 * batches[0]["rewards"])
     assert batches[0]["rewards"].abs().sum() > 0
+
+
+def test_critic_targets_are_clipped_only_where_the_reward_is_fetchs_0_or_minus_1():
+    """Fetch's reward (0 reached, -1 not) allows returns in [-1/(1-gamma), 0]; PointMaze's 0/+1
+    reward would have its positive targets clipped to 0, silently: no range there."""
+    reached = lambda ag, g: (np.linalg.norm(ag - g, axis=-1) < 0.05).astype(np.float32)
+    fetch = lambda ag, g: reached(ag, g) - 1.0
+    assert ipg_her.sparse_return_range(fetch, 3, 0.98) == pytest.approx((-50.0, 0.0))
+    assert ipg_her.sparse_return_range(reached, 2, 0.98) is None

@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 import torch
 import torch.nn as nn
-from conftest import assert_clean_error, random_batch, run_dirs, run_script, scalars
+from conftest import (
+    assert_clean_error,
+    assert_saved_policy_replays_last_evaluation,
+    random_batch,
+    run_dirs,
+    run_script,
+    scalars,
+)
 
 import ppo_kl
 import qprop_ppo
@@ -285,6 +292,7 @@ def test_smoke_reaches_critic_and_qprop_updates(tmp_path, env_id, flags):
     }
     assert expected <= set(tags), expected - set(tags)
     assert len(tags["qprop/eta"]) >= 2 and (run_dir / "model.pt").exists()
+    assert_saved_policy_replays_last_evaluation(run_dir, env_id)
 
 
 def test_bad_input_fails_with_one_clear_line_and_no_run_folder(tmp_path):

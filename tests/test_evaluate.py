@@ -1,0 +1,127 @@
+"""After training: common/checkpoint.py and common.evaluate (load, evaluate, watch), and
+--capture-video really recording."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+from conftest import ROOT, run_dirs, run_script, scalars
+
+from common import checkpoint, evaluate
+
+TINY_PPO = ["--num-envs", "2", "--num-steps", "64", "--total-timesteps", "128",
+            "--num-minibatches", "2", "--update-epochs", "1", "--eval-episodes", "2"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def hopper_run(tmp_path_factory):
+    log_dir = tmp_path_factory.mktemp("runs")
+    result = run_script("ppo_kl.py", log_dir, *TINY_PPO, "--save-model")
+    assert result.returncode == 0, result.stderr
+    (run_dir,) = run_dirs(log_dir)
+    return run_dir
+
+
+def test_the_command_prints_the_runs_own_last_evaluation(hopper_run, capsys):
+    assert evaluate.main([str(hopper_run)]) == 0
+    last = scalars(hopper_run)["eval/episodic_return"][-1][1]
+    assert capsys.readouterr().out.startswith(f"2 episodes: return {last:.2f} ± ")
+    assert evaluate.main([str(hopper_run / "model.pt"), "--episodes", "3", "--seed", "4"]) == 0
+    assert capsys.readouterr().out.startswith("3 episodes: return ")
+
+
+def refused(capsys, *argv: str) -> str:
+    with pytest.raises(SystemExit) as exit_info:
+        evaluate.main(list(argv))
+    assert exit_info.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    return lines[0]
+
+
+def test_bad_input_gets_one_clear_line(hopper_run, tmp_path, capsys):
+    assert "no such checkpoint" in refused(capsys, str(tmp_path / "nothing.pt"))
+    (tmp_path / "notes.pt").write_text("not a checkpoint")
+    assert "not a checkpoint" in refused(capsys, str(tmp_path / "notes.pt"))
+    torch.save({"script": "ppo_kl", "format_version": 99}, tmp_path / "future.pt")
+    assert "format 99" in refused(capsys, str(tmp_path / "future.pt"))
+    assert "NoSuchEnv-v0" in refused(capsys, str(hopper_run), "--env-id", "NoSuchEnv-v0")
+    assert "does not match" in refused(capsys, str(hopper_run), "--env-id", "FetchReach-v4")
+    assert "--episodes" in refused(capsys, str(hopper_run), "--episodes", "0")
+
+
+def test_an_interrupted_save_leaves_the_previous_checkpoint_loadable(tmp_path, monkeypatch):
+    path = str(tmp_path / "model.pt")
+    agent = torch.nn.Linear(2, 2)
+    args = type("Args", (), {"env_id": "Hopper-v5"})()
+    checkpoint.save(path, script="ppo_kl", args=args, last_eval_seeds=[1, 2], agent=agent)
+
+    def killed_half_way(state, file):
+        with open(file, "wb") as f:
+            f.write(b"half a checkpoint")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(torch, "save", killed_half_way)
+    with pytest.raises(KeyboardInterrupt):
+        checkpoint.save(path, script="ppo_kl", args=args, last_eval_seeds=[3], agent=agent)
+    state = checkpoint.load(path)
+    assert state["last_eval_seeds"] == [1, 2]
+    torch.testing.assert_close(state["agent"]["weight"], agent.weight.detach())
+
+
+def osmesa_available() -> bool:
+    code = "import mujoco; mujoco.GLContext(8, 8)"
+    env = {**os.environ, "MUJOCO_GL": "osmesa"}
+    return (
+        subprocess.run([sys.executable, "-c", code], env=env, capture_output=True).returncode == 0
+    )
+
+
+@pytest.mark.parametrize(
+    "script, flags",
+    [
+        ("ppo_kl.py", ["--env-id", "Hopper-v5", *TINY_PPO[:-1], "1"]),
+        (
+            "ipg_her.py",
+            [
+                "--env-id",
+                "FetchReach-v4",
+                "--total-timesteps",
+                "100",
+                "--critic-steps",
+                "1",
+                "--eval-episodes",
+                "1",
+            ],
+        ),  # fmt: skip
+    ],
+)
+def test_capture_video_records_an_mp4_with_frames(tmp_path, script, flags):
+    """One short evaluation of each task family, recorded with MuJoCo's OSMesa renderer (CI
+    installs it: apt install libosmesa6; pip install moviepy)."""
+    if not osmesa_available():
+        if os.environ.get("CI"):
+            pytest.fail("CI must install the video backend (libosmesa6 and moviepy)")
+        pytest.skip("no OSMesa renderer here: apt install libosmesa6")
+    env = {**os.environ, "MUJOCO_GL": "osmesa", "OMP_NUM_THREADS": "1"}
+    cmd = [
+        sys.executable,
+        str(ROOT / script),
+        "--log-dir",
+        str(tmp_path),
+        "--capture-video",
+        *flags,
+    ]
+    result = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    (run_dir,) = run_dirs(tmp_path)
+    videos = sorted((run_dir / "videos").rglob("*.mp4"))
+    assert videos, list((run_dir / "videos").rglob("*"))
+    import imageio
+
+    frames = imageio.get_reader(str(videos[0]), "ffmpeg").count_frames()
+    assert frames > 10, frames
+    assert np.all([v.stat().st_size > 1000 for v in videos])
