@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @dataclass
 class Args:
-    suite: Literal["paper", "ablations", "quick"] = "paper"
+    suite: Literal["paper", "ablations", "eta", "quick"] = "paper"
     """which grid to run"""
     seeds: tuple[int, ...] = ()
     """override the suite's seeds"""
@@ -68,7 +68,8 @@ HOPPER_STEPS, FETCH_STEPS = 1_000_000, 30_000
 def suite_runs(suite: str, seeds: tuple[int, ...] = ()) -> list[Run]:
     """The named grids. ``paper``: Figure 3 (Hopper: PPO-KL vs Q-Prop), Figures 4-5 (FetchReach:
     PPO-KL, Q-Prop, IPG without HER, IPG+HER); ``ablations``: Q-Prop's eta and normalisation,
-    IPG's nu, control variate and HER settings; ``quick``: the paper's shape on tiny budgets."""
+    IPG's nu, control variate and HER settings; ``eta``: Q-Prop's eta modes against PPO-KL on
+    Hopper at 300k steps; ``quick``: the paper's shape on tiny budgets."""
     fetch = lambda name, script, *flags: (name, script, "FetchReach-v4", flags)  # noqa: E731
     hopper = lambda name, script, *flags: (name, script, "Hopper-v5", flags)  # noqa: E731
     fetch_eval = ("--total-timesteps", str(FETCH_STEPS), "--eval-freq", "2500")
@@ -105,6 +106,14 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = ()) -> list[Run]:
         grid += [
             fetch(f"ipg_her_{s}", "ipg_her.py", "--her-goal-selection-strategy", s)
             for s in ("final", "episode")
+        ]
+    elif suite == "eta":  # Q-Prop's eta: one per batch (unbiased) vs per sample (the paper's)
+        seeds = seeds or (1, 2, 3)
+        budget = ("--total-timesteps", "300000")
+        grid = [hopper("ppo_kl_300k", "ppo_kl.py", *budget)]
+        grid += [
+            hopper(f"qprop_{eta}_300k", "qprop_ppo.py", "--eta-mode", eta, *budget)
+            for eta in ("batch-conservative", "conservative")
         ]
     else:  # quick
         seeds = seeds or (1,)
