@@ -1,7 +1,7 @@
 """Figures and a results table from the TensorBoard event files of a benchmark suite (nothing else).
 
     python benchmarks/report.py --suite paper                      # read benchmarks/runs/paper
-    python benchmarks/report.py --suite paper --from-export        # redraw from the committed export
+    python benchmarks/report.py --suite paper --from-export        # redraw from the export
 
 Writes into ``--results-dir`` (default ``benchmarks/results/{suite}``): ``curves.json`` (a compact
 export of every run's curves, enough to redraw everything), ``results.md`` (the table and how
@@ -22,9 +22,13 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import tyro  # noqa: E402
 
-TAGS = ("charts/episodic_return", "charts/episodic_length", "charts/success_rate", "charts/policy_entropy",
-        "charts/SPS", "eval/episodic_return", "eval/success_rate")  # fmt: skip
-THRESHOLDS = {"Hopper-v5": ("charts/episodic_return", 2000.0), "FetchReach-v4": ("eval/success_rate", 0.9)}
+TAGS = ("charts/episodic_return", "charts/episodic_length", "charts/success_rate",
+        "charts/policy_entropy", "charts/SPS", "eval/episodic_return",
+        "eval/success_rate")  # fmt: skip
+THRESHOLDS = {
+    "Hopper-v5": ("charts/episodic_return", 2000.0),
+    "FetchReach-v4": ("eval/success_rate", 0.9),
+}
 LABELS = {"ppo_kl": "PPO-KL", "qprop_ppo": "Q-Prop", "ipg": "IPG (no HER)", "ipg_her": "IPG+HER"}
 
 
@@ -43,7 +47,7 @@ class Args:
     seed: int = 0
     """seed of the bootstrap confidence intervals"""
     readme: str = ""
-    """also write the table and figures into this README, between its markers <!-- results:{suite}:start/end -->"""
+    """also write table and figures into this README, between <!-- results:{suite}:start/end -->"""
 
 
 def read_run(run_dir: Path) -> dict:
@@ -59,6 +63,10 @@ def read_run(run_dir: Path) -> dict:
             out[tag] = [[e.step, round(e.value, 5)] for e in events]
             times += [e.wall_time for e in events]
     out["wall_time"] = max(times) - min(times) if times else 0.0
+    if "hyperparameters/text_summary" in acc.Tags().get("tensors", []):
+        text = acc.Tensors("hyperparameters/text_summary")[0].tensor_proto.string_val[0].decode()
+        cells = [line.strip("|").split("|") for line in text.splitlines()]
+        out["args"] = {c[0]: c[1] for c in cells if len(c) == 2 and c[0] in ("eval_episodes",)}
     return out
 
 
@@ -66,7 +74,10 @@ def downsample(points: list, n: int = 300) -> list:
     """At most ``n`` points: the mean value of consecutive chunks, at each chunk's last step."""
     if len(points) <= n:
         return points
-    return [[int(c[-1, 0]), round(float(c[:, 1].mean()), 5)] for c in np.array_split(np.array(points, float), n)]
+    return [
+        [int(c[-1, 0]), round(float(c[:, 1].mean()), 5)]
+        for c in np.array_split(np.array(points, float), n)
+    ]
 
 
 def collect(runs_dir: Path, window: int) -> dict:
@@ -75,7 +86,10 @@ def collect(runs_dir: Path, window: int) -> dict:
     plotting: the export stays small and still reproduces the table exactly."""
     groups = defaultdict(dict)
     for folder in sorted(runs_dir.iterdir()):
-        if not (folder / "exit_code").exists() or folder.joinpath("exit_code").read_text().strip() != "0":
+        if (
+            not (folder / "exit_code").exists()
+            or folder.joinpath("exit_code").read_text().strip() != "0"
+        ):
             continue
         name, env_id, seed = folder.name.split("__")
         event_dirs = [p for p in folder.iterdir() if p.is_dir()]
@@ -84,7 +98,12 @@ def collect(runs_dir: Path, window: int) -> dict:
         run = read_run(max(event_dirs))
         run["final"] = final_performance(run, bool(run.get("charts/success_rate")), window)
         run["reach"] = steps_to_threshold(run, env_id, window)
-        for tag in ("charts/episodic_return", "charts/episodic_length", "charts/success_rate", "charts/policy_entropy"):
+        for tag in (
+            "charts/episodic_return",
+            "charts/episodic_length",
+            "charts/success_rate",
+            "charts/policy_entropy",
+        ):
             if tag in run:
                 run[tag] = downsample(run[tag])
         groups[f"{name}__{env_id}"][seed.removeprefix("seed")] = run
@@ -108,17 +127,26 @@ def final_performance(run: dict, goal_task: bool, window: int) -> float:
 
 
 def steps_to_threshold(run: dict, env_id: str, window: int) -> float:
+    """The first step where the task's figure reaches its threshold (NaN: never). On the
+    training return the figure is the mean of the last ``window`` episodes, counted only once
+    ``window`` episodes exist (a mean of the first few episodes is not that figure)."""
     tag, threshold = THRESHOLDS.get(env_id, ("charts/episodic_return", np.inf))
     points = run.get(tag, [])
-    if tag == "charts/episodic_return":  # running mean of the last `window` episodes
+    if tag == "charts/episodic_return":
         values = np.array([v for _, v in points])
-        running = [values[max(0, i - window + 1) : i + 1].mean() for i in range(len(values))]
-        points = [[s, r] for (s, _), r in zip(points, running)]
+        running = [values[i - window + 1 : i + 1].mean() for i in range(window - 1, len(values))]
+        points = [[s, r] for (s, _), r in zip(points[window - 1 :], running, strict=True)]
     return next((s for s, v in points if v >= threshold), float("nan"))
 
 
+def median_steps(reach) -> float:
+    """Median over *all* seeds of the steps to threshold, a seed that never reached it counting
+    as infinitely many: inf when more than half never did."""
+    return float(np.median(np.where(np.isfinite(reach), reach, np.inf)))
+
+
 def curve_on_grid(points: list, grid: np.ndarray, smooth: int) -> np.ndarray:
-    """A run's curve, smoothed by a moving average of ``smooth`` points, interpolated on ``grid``."""
+    """A run's curve, smoothed by a moving average of ``smooth`` points, interpolated on grid."""
     steps, values = np.array(points, float).T
     if smooth > 1 and len(values) >= smooth:
         values = np.convolve(values, np.ones(smooth) / smooth, mode="valid")
@@ -128,15 +156,28 @@ def curve_on_grid(points: list, grid: np.ndarray, smooth: int) -> np.ndarray:
     return out
 
 
-def bootstrap_band(curves: np.ndarray, rng: np.random.Generator, n: int = 1000) -> tuple[np.ndarray, np.ndarray]:
+def bootstrap_band(
+    curves: np.ndarray, rng: np.random.Generator, n: int = 1000
+) -> tuple[np.ndarray, np.ndarray]:
     """95% bootstrap confidence interval of the mean over seeds, pointwise."""
     seeds = curves.shape[0]
     means = np.stack([np.nanmean(curves[rng.integers(0, seeds, seeds)], 0) for _ in range(n)])
     return np.nanpercentile(means, 2.5, 0), np.nanpercentile(means, 97.5, 0)
 
 
-def plot(ax, groups: dict, names: list, env_id: str, tag: str, rng, smooth: int = 1, per_episode: bool = False) -> None:
-    warnings.simplefilter("ignore", RuntimeWarning)  # grid points past a seed's last step are NaN on purpose
+def plot(
+    ax,
+    groups: dict,
+    names: list,
+    env_id: str,
+    tag: str,
+    rng,
+    smooth: int = 1,
+    per_episode: bool = False,
+) -> None:
+    warnings.simplefilter(
+        "ignore", RuntimeWarning
+    )  # grid points past a seed's last step are NaN on purpose
     for name in names:
         runs = groups.get(f"{name}__{env_id}", {})
         runs = [r[tag] for r in runs.values() if r.get(tag)]
@@ -150,7 +191,9 @@ def plot(ax, groups: dict, names: list, env_id: str, tag: str, rng, smooth: int 
         lo, hi = bootstrap_band(curves, rng)
         ax.fill_between(x, lo, hi, alpha=0.2)
     ax.set_xlabel("episodes" if per_episode else "environment steps")
-    ax.set_ylabel(tag.split("/")[-1].replace("_", " ") + (" (eval)" if tag.startswith("eval") else ""))
+    ax.set_ylabel(
+        tag.split("/")[-1].replace("_", " ") + (" (eval)" if tag.startswith("eval") else "")
+    )
     ax.set_title(env_id)
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[0]:
@@ -158,7 +201,8 @@ def plot(ax, groups: dict, names: list, env_id: str, tag: str, rng, smooth: int 
 
 
 def table(groups: dict, window: int) -> str:
-    rows = ["| task | algorithm | seeds | final (mean ± std) | final median | final IQM | final eval | steps to threshold (median) | SPS | wall time (s) |",
+    rows = ["| task | algorithm | seeds | final (mean ± std) | final median | final IQM "
+            "| final eval | steps to threshold (median) | SPS | wall time (s) |",
             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
     for group in sorted(groups, key=lambda g: (g.split("__")[1], g)):
         name, env_id = group.split("__")
@@ -168,48 +212,100 @@ def table(groups: dict, window: int) -> str:
         eval_tag = "eval/success_rate" if goal else "eval/episodic_return"
         final_eval = np.array([r[eval_tag][-1][1] for r in runs if r.get(eval_tag)])
         reach = np.array([r["reach"] for r in runs])
-        reached = reach[np.isfinite(reach)]
-        reach_text = f"{np.median(reached):,.0f} ({len(reached)}/{len(runs)} seeds)" if len(reached) else f"not reached (0/{len(runs)})"
+        median, k = median_steps(reach), int(np.isfinite(reach).sum())
+        reach_text = f"{median:,.0f}" if np.isfinite(median) else "not reached"
+        reach_text += f" ({k}/{len(runs)} seeds)"
         sps = np.mean([r["charts/SPS"][-1][1] for r in runs if r.get("charts/SPS")])
         wall = np.mean([r["wall_time"] for r in runs])
         f = ".2f" if goal else ".0f"
-        rows.append(f"| {env_id} | {LABELS.get(name, name)} | {len(runs)} | {final.mean():{f}} ± {final.std():{f}} | {np.median(final):{f}} | {iqm(final):{f}} "
-                    f"| {final_eval.mean():{f}} | {reach_text} | {sps:.0f} | {wall:.0f} |")  # fmt: skip
+        rows.append(f"| {env_id} | {LABELS.get(name, name)} | {len(runs)} "
+                    f"| {final.mean():{f}} ± {final.std():{f}} | {np.median(final):{f}} "
+                    f"| {iqm(final):{f}} | {final_eval.mean():{f}} | {reach_text} | {sps:.0f} "
+                    f"| {wall:.0f} |")  # fmt: skip
     return "\n".join(rows)
 
 
-def success_table(groups: dict, checkpoints=(2500, 5000, 10000, 30000)) -> str:
-    """Goal tasks: the evaluation success rate at a few budgets, median and range over seeds."""
-    rows = ["| task | algorithm | " + " | ".join(f"eval success @ {c:,} steps" for c in checkpoints) + " |",
+def success_table(groups: dict, budgets=(2500, 5000, 10000, 30000)) -> str:
+    """Goal tasks: the evaluation success rate at a few budgets, median and range over seeds;
+    only the budgets the runs reached (the last evaluation's step if they reached none)."""
+    last = max((r["eval/success_rate"][-1][0] for g in groups.values() for r in g.values()
+                if r.get("eval/success_rate")), default=0)  # fmt: skip
+    checkpoints = [c for c in budgets if c <= last] or ([last] if last else [])
+    columns = " | ".join(f"eval success @ {c:,} steps" for c in checkpoints)
+    rows = [f"| task | algorithm | {columns} |",
             "| --- | --- | " + " | ".join("---" for _ in checkpoints) + " |"]  # fmt: skip
     for group in sorted(groups):
         name, env_id = group.split("__")
-        runs = [r["eval/success_rate"] for r in groups[group].values() if r.get("eval/success_rate")]
+        runs = [
+            r["eval/success_rate"] for r in groups[group].values() if r.get("eval/success_rate")
+        ]
         if not runs:
             continue
         cells = []
         for c in checkpoints:
             values = [([v for s, v in run if s <= c] or [np.nan])[-1] for run in runs]
             values = [v for v in values if np.isfinite(v)]
-            cells.append(f"{np.median(values):.2f} [{min(values):.2f}, {max(values):.2f}]" if values else "-")
+            cells.append(
+                f"{np.median(values):.2f} [{min(values):.2f}, {max(values):.2f}]" if values else "-"
+            )
         rows.append(f"| {env_id} | {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
     return "\n".join(rows) if len(rows) > 2 else ""
 
 
 def draw_paper_figures(groups: dict, results: Path, rng) -> list[str]:
-    """The paper's Figures 3 (Hopper: length and return), 4 (FetchReach: entropy and return), 5 (success)."""
+    """The paper's Figures 3 (Hopper: length and return), 4 (FetchReach: entropy and return) and
+    5 (success)."""
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    plot(axes[0], groups, ["ppo_kl", "qprop_ppo"], "Hopper-v5", "charts/episodic_length", rng, smooth=20)
-    plot(axes[1], groups, ["ppo_kl", "qprop_ppo"], "Hopper-v5", "charts/episodic_return", rng, smooth=20)
+    plot(
+        axes[0],
+        groups,
+        ["ppo_kl", "qprop_ppo"],
+        "Hopper-v5",
+        "charts/episodic_length",
+        rng,
+        smooth=20,
+    )
+    plot(
+        axes[1],
+        groups,
+        ["ppo_kl", "qprop_ppo"],
+        "Hopper-v5",
+        "charts/episodic_return",
+        rng,
+        smooth=20,
+    )
     fig.tight_layout()
     fig.savefig(results / "fig3_hopper.png", dpi=100)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    plot(axes[0], groups, ["ppo_kl", "qprop_ppo", "ipg_her"], "FetchReach-v4", "charts/policy_entropy", rng)
-    plot(axes[1], groups, ["ppo_kl", "qprop_ppo", "ipg_her"], "FetchReach-v4", "charts/episodic_return", rng, smooth=10)
+    plot(
+        axes[0],
+        groups,
+        ["ppo_kl", "qprop_ppo", "ipg_her"],
+        "FetchReach-v4",
+        "charts/policy_entropy",
+        rng,
+    )
+    plot(
+        axes[1],
+        groups,
+        ["ppo_kl", "qprop_ppo", "ipg_her"],
+        "FetchReach-v4",
+        "charts/episodic_return",
+        rng,
+        smooth=10,
+    )
     fig.tight_layout()
     fig.savefig(results / "fig4_fetchreach.png", dpi=100)
     fig, ax = plt.subplots(figsize=(6, 4))
-    plot(ax, groups, ["ppo_kl", "ipg", "ipg_her"], "FetchReach-v4", "eval/success_rate", rng, per_episode=True)
+    plot(
+        ax,
+        groups,
+        ["ppo_kl", "ipg", "ipg_her"],
+        "FetchReach-v4",
+        "eval/success_rate",
+        rng,
+        per_episode=True,
+    )
     fig.tight_layout()
     fig.savefig(results / "fig5_fetchreach_success.png", dpi=100)
     return ["fig3_hopper.png", "fig4_fetchreach.png", "fig5_fetchreach_success.png"]
@@ -223,7 +319,10 @@ def main(args: Args) -> int:
     else:
         runs_dir = Path(args.runs_dir) / args.suite
         if not runs_dir.is_dir():
-            print(f"error: no runs in {runs_dir}; run benchmarks/run.py --suite {args.suite} first", file=sys.stderr)
+            print(
+                f"error: no runs in {runs_dir}; run benchmarks/run.py --suite {args.suite} first",
+                file=sys.stderr,
+            )
             return 2
         groups = collect(runs_dir, args.window)
         (results / "curves.json").write_text(json.dumps(groups, separators=(",", ":")))
@@ -245,6 +344,13 @@ def main(args: Args) -> int:
             fig.savefig(results / figures[-1], dpi=100)
     plt.close("all")
 
+    episodes = {}  # evaluation episodes per task, from the runs' own hyperparameters
+    for group, runs in groups.items():
+        for run in runs.values():
+            if "eval_episodes" in run.get("args", {}):
+                episodes.setdefault(group.split("__")[1], set()).add(run["args"]["eval_episodes"])
+    per_task = "; ".join(f"{e}: {' or '.join(sorted(n))}" for e, n in sorted(episodes.items()))
+    eval_note = f" ({per_task} episodes)" if per_task else ""
     text = f"""{table(groups, args.window)}
 
 {success_table(groups)}
@@ -253,22 +359,31 @@ How this was measured: every row is the runs of `benchmarks/run.py --suite {args
 finished, read from their TensorBoard event files by `benchmarks/report.py`. *final*: the mean
 return of the last {args.window} training episodes (stochastic policy); on FetchReach the success
 rate of the last 100 training episodes. Mean ± std, median and interquartile mean (IQM) over seeds.
-*final eval*: the last evaluation of the deterministic policy (Hopper: 10 episodes; FetchReach:
-20). *steps to threshold*: first step where the running mean of the last {args.window} training
-returns reaches 2000 (Hopper), or where an evaluation reaches 0.9 success (FetchReach). *SPS*:
+*final eval*: the last evaluation of the deterministic policy{eval_note}. *steps to threshold*:
+first step where the mean of the last {args.window} training returns (once there are
+{args.window}) reaches 2000 (Hopper), or where an evaluation reaches 0.9 success (FetchReach);
+median over all seeds, a seed that never reached it counting as never. *SPS*:
 environment steps per second of training, evaluation excluded; *wall time*: first to last logged
 event. Curves: mean over seeds with a 95% bootstrap confidence band, Hopper smoothed over 20
 logged episodes, FetchReach returns over 10. The success table gives, for goal tasks, the median
-[min, max] over seeds of the last evaluation at or before each budget (20 episodes each).
+[min, max] over seeds of the last evaluation at or before each budget.
 """
     (results / "results.md").write_text(text)
     print(text)
     if args.readme:
         readme = Path(args.readme)
         start, end = f"<!-- results:{args.suite}:start -->", f"<!-- results:{args.suite}:end -->"
+        if not readme.is_file():
+            print(f"error: --readme {readme}: no such file", file=sys.stderr)
+            return 2
+        if readme.read_text().count(start) != 1 or readme.read_text().count(end) != 1:
+            print(f"error: --readme {readme} needs the markers {start} and {end}, once each, "
+                  "around the place to write", file=sys.stderr)  # fmt: skip
+            return 2
         before, rest = readme.read_text().split(start)
         images = "\n".join(f"![{f}]({results.as_posix()}/{f})" for f in figures)
-        block = f"{start}\n<!-- written by benchmarks/report.py: do not edit by hand -->\n{text}\n{images}\n{end}"
+        note = "<!-- written by benchmarks/report.py: do not edit by hand -->"
+        block = f"{start}\n{note}\n{text}\n{images}\n{end}"
         readme.write_text(before + block + rest.split(end)[1])
     return 0
 

@@ -1,0 +1,112 @@
+"""benchmarks/report.py's statistics against values computed by hand, on hand-made event files."""
+
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import ROOT
+from torch.utils.tensorboard import SummaryWriter
+
+from benchmarks import report
+
+WINDOW = 5
+
+
+def write_run(runs_dir, name, env_id, seed, returns=(), successes=(), eval_episodes=10):
+    """A finished run as benchmarks/run.py lays it out: training returns one per 100 steps,
+    evaluation success rates one per 500 steps, and the hyperparameter table."""
+    folder = runs_dir / f"{name}__{env_id}__seed{seed}"
+    writer = SummaryWriter(str(folder / f"{env_id}__{name}__{seed}__0"))
+    writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n|eval_episodes|{eval_episodes}|")
+    for i, value in enumerate(returns):
+        writer.add_scalar("charts/episodic_return", value, 100 * (i + 1))
+    for i, value in enumerate(successes):
+        writer.add_scalar("charts/success_rate", value, 500 * (i + 1))
+        writer.add_scalar("eval/success_rate", value, 500 * (i + 1))
+    writer.add_scalar("charts/SPS", 1000, 100 * max(len(returns), 1))
+    writer.close()
+    (folder / "exit_code").write_text("0\n")
+
+
+def test_steps_to_threshold_uses_full_windows_and_counts_unreached_seeds(tmp_path):
+    runs = tmp_path / "runs" / "test"
+    # seed 1: one huge first episode, which alone (a partial window) would "reach" 2000 at step
+    # 100; the first full window, episodes 1-5, has mean (20000 + 400) / 5 = 4080: step 500
+    write_run(runs, "algo", "Hopper-v5", 1, [20000] + [100] * 9 + [2500] * 10)
+    write_run(runs, "algo", "Hopper-v5", 2, [2100] * 20)  # full window first at episode 5
+    write_run(runs, "algo", "Hopper-v5", 3, [500] * 20)  # never
+    groups = report.collect(runs, WINDOW)["algo__Hopper-v5"]
+    assert groups["1"]["reach"] == 500
+    assert groups["2"]["reach"] == 500
+    assert np.isnan(groups["3"]["reach"])
+    reach = np.array([groups[s]["reach"] for s in "123"])
+    assert report.median_steps(reach) == 500  # median of (500, 500, never)
+    assert report.median_steps(np.array([500.0, np.nan, np.nan])) == np.inf
+    assert report.median_steps(np.array([500.0, 700.0, np.nan, np.nan])) == np.inf
+    assert report.median_steps(np.array([500.0, 700.0, 900.0, np.nan])) == 800
+
+
+def test_partial_windows_never_count(tmp_path):
+    runs = tmp_path / "runs" / "test"
+    write_run(runs, "algo", "Hopper-v5", 1, [3000, 3000, 3000, 0, 0, 0, 0, 0])  # 3 big, then 0
+    (run,) = report.collect(runs, WINDOW)["algo__Hopper-v5"].values()
+    assert np.isnan(run["reach"])  # the only windows of 5 average 1800 and less
+
+
+def test_table_statistics_equal_hand_computed_values(tmp_path):
+    runs = tmp_path / "runs" / "test"
+    finals = {1: 1000.0, 2: 2000.0, 3: 3000.0, 4: 10000.0}
+    for seed, level in finals.items():
+        write_run(runs, "algo", "Hopper-v5", seed, [0.0] * 5 + [level] * WINDOW)
+    groups = report.collect(runs, WINDOW)
+    row = next(r for r in report.table(groups, WINDOW).splitlines() if "Hopper-v5" in r)
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    values = np.array(list(finals.values()))
+    assert cells[2] == "4"
+    assert cells[3] == f"{values.mean():.0f} ± {values.std():.0f}"
+    assert cells[4] == f"{np.median(values):.0f}"
+    assert cells[5] == f"{(2000 + 3000) / 2:.0f}"  # IQM of 4 values: the middle two
+    # the window ending at episode i averages level (i - 5) / 5: 2000 is reached at step 1000
+    # (seed 2), 900 (seed 3), 600 (seed 4), never by seed 1: median of (600, 900, 1000, never)
+    assert cells[7] == "950 (3/4 seeds)"
+
+
+def test_bootstrap_band_against_the_exact_bootstrap_distribution():
+    """Seeds 0, 3, 6: resampled means are whole numbers; P(mean = 0) = P(mean = 6) = 1/27 > 2.5%,
+    so the 95% band of the mean is exactly [0, 6]; identical seeds give a band of zero width."""
+    rng = np.random.default_rng(0)
+    lo, hi = report.bootstrap_band(np.array([[0.0], [3.0], [6.0]]), rng)
+    assert lo[0] == 0.0 and hi[0] == 6.0
+    lo, hi = report.bootstrap_band(np.full((5, 3), 2.0), rng)
+    np.testing.assert_array_equal(lo, 2.0)
+    np.testing.assert_array_equal(hi, 2.0)
+
+
+def test_success_table_columns_and_episode_counts_come_from_the_runs(tmp_path, capsys):
+    runs = tmp_path / "runs" / "quick"
+    for seed in (1, 2):
+        write_run(runs, "ipg_her", "FetchReach-v4", seed, [-50] * 3, [0.0, 0.5, 1.0], 7)
+    assert report.main(report.Args(suite="quick", runs_dir=str(tmp_path / "runs"),
+                                   results_dir=str(tmp_path / "results"))) == 0  # fmt: skip
+    text = (tmp_path / "results" / "results.md").read_text()
+    header = next(line for line in text.splitlines() if "eval success @" in line)
+    assert re.findall(r"@ ([\d,]+) steps", header) == ["1,500"]  # the runs stop at 1,500 steps
+    assert "FetchReach-v4: 7 episodes" in text and "20 episodes" not in text
+
+
+@pytest.mark.parametrize("content", [None, "# a README without markers\n"])
+def test_readme_without_file_or_markers_is_one_error_line(tmp_path, content):
+    runs = tmp_path / "runs" / "quick"
+    write_run(runs, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
+    readme = tmp_path / "README.md"
+    if content is not None:
+        readme.write_text(content)
+    cmd = [sys.executable, "benchmarks/report.py", "--suite", "quick", "--runs-dir",
+           str(tmp_path / "runs"), "--results-dir", str(tmp_path / "out"),
+           "--readme", str(readme)]  # fmt: skip
+    result = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and str(readme) in errors[0], result.stderr
