@@ -72,6 +72,17 @@ def random_batch(n: int, obs_dim: int, act_dim: int, agent, seed: int = 0) -> di
         }
 
 
+class ScaledQ(torch.nn.Module):
+    """The critic of a task whose rewards are all multiplied by c."""
+
+    def __init__(self, qf, c):
+        super().__init__()
+        self.qf, self.c = qf, c
+
+    def forward(self, x, a):
+        return self.c * self.qf(x, a)
+
+
 def assert_saved_policy_replays_last_evaluation(run_dir: Path, env_id: str) -> None:
     """The run's model.pt, loaded by ``common.evaluate.load_policy`` alone, replays the run's last
     evaluation to the same mean return, and acts on raw observations (a Dict on goal tasks)."""

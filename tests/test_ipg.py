@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import (
+    ScaledQ,
     assert_clean_error,
     assert_saved_policy_replays_last_evaluation,
     random_batch,
@@ -11,6 +12,7 @@ from conftest import (
     run_script,
     scalars,
 )
+from toy_envs import counting_envs
 
 import ipg_her
 import ppo_kl
@@ -138,14 +140,9 @@ def test_bad_input_fails_with_one_clear_line_and_no_run_folder(tmp_path):
 
 
 def test_replayed_transitions_never_cross_a_reset_and_keep_the_true_final_observation():
-    import gymnasium as gym
-    from toy_envs import CountingGoalEnv
 
     torch.manual_seed(0)
-    envs = gym.vector.SyncVectorEnv(
-        [lambda: gym.wrappers.RecordEpisodeStatistics(CountingGoalEnv(limit=5)) for _ in range(2)],
-        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
-    )
+    envs = counting_envs(2, goal=True)
     agent = ipg_her.Agent(4, 1, 16)
     with torch.no_grad():
         agent.actor_logstd.fill_(0.5)  # some episodes terminate early
@@ -194,17 +191,6 @@ def test_critic_targets_are_clipped_to_the_return_range():
     assert abs(clipped - 0.5 * (q**2).mean().item()) < 1e-5
     raw, _ = ipg_her.critic_step(qf, qf_target, optimizer, agent, d, 0.98, 0.05)
     assert raw > clipped + 1.0
-
-
-class ScaledQ(torch.nn.Module):
-    """The critic of a task whose rewards are all multiplied by c."""
-
-    def __init__(self, qf, c):
-        super().__init__()
-        self.qf, self.c = qf, c
-
-    def forward(self, x, a):
-        return self.c * self.qf(x, a)
 
 
 def policy_after_one_update(c, nu, use_cv, normalization, q_bar="sample"):

@@ -15,7 +15,7 @@ from conftest import (
     run_script,
     scalars,
 )
-from toy_envs import CountingEnv
+from toy_envs import counting_envs
 
 import ppo_kl
 from common.normalizer import RunningMeanStd
@@ -71,10 +71,7 @@ def test_smoke_logs_tags_and_saved_model_evaluates(tmp_path, env_id, flags):
 
 def test_no_transition_crosses_a_reset_and_truncation_bootstraps_from_final_obs():
     torch.manual_seed(0)
-    envs = gym.vector.SyncVectorEnv(
-        [lambda: gym.wrappers.RecordEpisodeStatistics(CountingEnv(limit=5)) for _ in range(3)],
-        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
-    )
+    envs = counting_envs(3)
     agent = ppo_kl.Agent(2, 1)
     with torch.no_grad():
         agent.actor_logstd.fill_(0.5)  # wide enough that some episodes terminate early

@@ -8,6 +8,7 @@ import pytest
 import torch
 import torch.nn as nn
 from conftest import (
+    ScaledQ,
     assert_clean_error,
     assert_saved_policy_replays_last_evaluation,
     random_batch,
@@ -15,6 +16,7 @@ from conftest import (
     run_script,
     scalars,
 )
+from toy_envs import counting_envs
 
 import ppo_kl
 import qprop_ppo
@@ -302,17 +304,6 @@ def test_bad_input_fails_with_one_clear_line_and_no_run_folder(tmp_path):
     assert not (tmp_path.exists() and run_dirs(tmp_path)), "no run folder for rejected input"
 
 
-class ScaledQ(nn.Module):
-    """The critic of a task whose rewards are all multiplied by c."""
-
-    def __init__(self, qf, c):
-        super().__init__()
-        self.qf, self.c = qf, c
-
-    def forward(self, x, a):
-        return self.c * self.qf(x, a)
-
-
 def policy_after_one_update(c, eta_mode, normalization):
     torch.manual_seed(0)
     agent, qf = qprop_ppo.Agent(5, 2), qprop_ppo.QNetwork(5, 2)
@@ -343,14 +334,9 @@ def test_update_is_the_same_whatever_the_reward_scale(eta_mode):
 def test_replay_holds_the_executed_action():
     """The critic learns Q of the action the environment executed (clipped), while the rollout
     keeps the sampled one for the likelihood ratio and A_bar."""
-    import gymnasium as gym
-    from toy_envs import CountingEnv
 
     torch.manual_seed(0)
-    envs = gym.vector.SyncVectorEnv(
-        [lambda: gym.wrappers.RecordEpisodeStatistics(CountingEnv(limit=5)) for _ in range(2)],
-        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
-    )
+    envs = counting_envs(2)
     agent = qprop_ppo.Agent(2, 1)
     with torch.no_grad():
         agent.actor_logstd.fill_(0.5)

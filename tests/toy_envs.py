@@ -46,3 +46,13 @@ class CountingGoalEnv(CountingEnv):
             "achieved_goal": now.copy(),
             "desired_goal": np.array([self.episode % 8, -1.0]),
         }
+
+
+def counting_envs(num_envs: int, goal: bool = False) -> gym.vector.SyncVectorEnv:
+    """``num_envs`` CountingEnvs (CountingGoalEnvs with ``goal``) in a SAME_STEP vector env, as
+    the scripts run theirs."""
+    env_class = CountingGoalEnv if goal else CountingEnv
+    return gym.vector.SyncVectorEnv(
+        [lambda: gym.wrappers.RecordEpisodeStatistics(env_class(limit=5)) for _ in range(num_envs)],
+        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
+    )
