@@ -141,7 +141,8 @@ def steps_to_threshold(run: dict, env_id: str, window: int) -> float:
 
 def median_steps(reach) -> float:
     """Median over *all* seeds of the steps to threshold, a seed that never reached it counting
-    as infinitely many: inf when more than half never did."""
+    as infinitely many: inf when half of them or more never did (with exactly half, the median
+    averages a finite count and inf)."""
     return float(np.median(np.where(np.isfinite(reach), reach, np.inf)))
 
 
@@ -201,7 +202,7 @@ def plot(
 
 
 def table(groups: dict, window: int) -> str:
-    rows = ["| task | algorithm | seeds | final (mean ± std) | final median | final IQM "
+    rows = ["| task | algorithm | seeds | final (mean ± sample std) | final median | final IQM "
             "| final eval | steps to threshold (median) | SPS | wall time (s) |",
             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
     for group in sorted(groups, key=lambda g: (g.split("__")[1], g)):
@@ -219,7 +220,7 @@ def table(groups: dict, window: int) -> str:
         wall = np.mean([r["wall_time"] for r in runs])
         f = ".2f" if goal else ".0f"
         rows.append(f"| {env_id} | {LABELS.get(name, name)} | {len(runs)} "
-                    f"| {final.mean():{f}} ± {final.std():{f}} | {np.median(final):{f}} "
+                    f"| {final.mean():{f}} ± {final.std(ddof=1):{f}} | {np.median(final):{f}} "
                     f"| {iqm(final):{f}} | {final_eval.mean():{f}} | {reach_text} | {sps:.0f} "
                     f"| {wall:.0f} |")  # fmt: skip
     return "\n".join(rows)
@@ -312,9 +313,24 @@ def draw_paper_figures(groups: dict, results: Path, rng) -> list[str]:
 
 
 def main(args: Args) -> int:
+    # a bad --readme is caught before anything is read or written
+    readme = Path(args.readme)
+    start, end = f"<!-- results:{args.suite}:start -->", f"<!-- results:{args.suite}:end -->"
+    if args.readme and not readme.is_file():
+        print(f"error: --readme {readme}: no such file; name an existing README holding the "
+              f"markers {start} and {end}, or leave out --readme", file=sys.stderr)  # fmt: skip
+        return 2
+    if args.readme and not readme.read_text().count(start) == readme.read_text().count(end) == 1:
+        print(f"error: --readme {readme} needs the markers {start} and {end}, once each, "
+              "around the place to write; add them", file=sys.stderr)  # fmt: skip
+        return 2
     results = Path(args.results_dir or f"benchmarks/results/{args.suite}")
     results.mkdir(parents=True, exist_ok=True)
     if args.from_export:
+        if not (results / "curves.json").is_file():
+            print(f"error: no export {results / 'curves.json'}; run report.py without "
+                  "--from-export on the event files first", file=sys.stderr)  # fmt: skip
+            return 2
         groups = json.loads((results / "curves.json").read_text())
     else:
         runs_dir = Path(args.runs_dir) / args.suite
@@ -350,7 +366,7 @@ def main(args: Args) -> int:
             if "eval_episodes" in run.get("args", {}):
                 episodes.setdefault(group.split("__")[1], set()).add(run["args"]["eval_episodes"])
     per_task = "; ".join(f"{e}: {' or '.join(sorted(n))}" for e, n in sorted(episodes.items()))
-    eval_note = f" ({per_task} episodes)" if per_task else ""
+    eval_note = f" (episodes per evaluation: {per_task})" if per_task else ""
     text = f"""{table(groups, args.window)}
 
 {success_table(groups)}
@@ -358,7 +374,8 @@ def main(args: Args) -> int:
 How this was measured: every row is the runs of `benchmarks/run.py --suite {args.suite}` that
 finished, read from their TensorBoard event files by `benchmarks/report.py`. *final*: the mean
 return of the last {args.window} training episodes (stochastic policy); on FetchReach the success
-rate of the last 100 training episodes. Mean ± std, median and interquartile mean (IQM) over seeds.
+rate of the last 100 training episodes. Mean ± sample std, median and interquartile mean (IQM)
+over seeds.
 *final eval*: the last evaluation of the deterministic policy{eval_note}. *steps to threshold*:
 first step where the mean of the last {args.window} training returns (once there are
 {args.window}) reaches 2000 (Hopper), or where an evaluation reaches 0.9 success (FetchReach);
@@ -371,15 +388,6 @@ logged episodes, FetchReach returns over 10. The success table gives, for goal t
     (results / "results.md").write_text(text)
     print(text)
     if args.readme:
-        readme = Path(args.readme)
-        start, end = f"<!-- results:{args.suite}:start -->", f"<!-- results:{args.suite}:end -->"
-        if not readme.is_file():
-            print(f"error: --readme {readme}: no such file", file=sys.stderr)
-            return 2
-        if readme.read_text().count(start) != 1 or readme.read_text().count(end) != 1:
-            print(f"error: --readme {readme} needs the markers {start} and {end}, once each, "
-                  "around the place to write", file=sys.stderr)  # fmt: skip
-            return 2
         before, rest = readme.read_text().split(start)
         images = "\n".join(f"![{f}]({results.as_posix()}/{f})" for f in figures)
         note = "<!-- written by benchmarks/report.py: do not edit by hand -->"

@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import ROOT
+from conftest import ROOT, assert_clean_error
 from torch.utils.tensorboard import SummaryWriter
 
 from benchmarks import report
@@ -65,7 +65,7 @@ def test_table_statistics_equal_hand_computed_values(tmp_path):
     cells = [c.strip() for c in row.strip("|").split("|")]
     values = np.array(list(finals.values()))
     assert cells[2] == "4"
-    assert cells[3] == f"{values.mean():.0f} ± {values.std():.0f}"
+    assert cells[3] == f"{values.mean():.0f} ± {values.std(ddof=1):.0f}"  # sample std
     assert cells[4] == f"{np.median(values):.0f}"
     assert cells[5] == f"{(2000 + 3000) / 2:.0f}"  # IQM of 4 values: the middle two
     # the window ending at episode i averages level (i - 5) / 5: 2000 is reached at step 1000
@@ -93,7 +93,7 @@ def test_success_table_columns_and_episode_counts_come_from_the_runs(tmp_path, c
     text = (tmp_path / "results" / "results.md").read_text()
     header = next(line for line in text.splitlines() if "eval success @" in line)
     assert re.findall(r"@ ([\d,]+) steps", header) == ["1,500"]  # the runs stop at 1,500 steps
-    assert "FetchReach-v4: 7 episodes" in text and "20 episodes" not in text
+    assert "episodes per evaluation: FetchReach-v4: 7)" in text and "20 episodes" not in text
 
 
 @pytest.mark.parametrize("content", [None, "# a README without markers\n"])
@@ -110,3 +110,14 @@ def test_readme_without_file_or_markers_is_one_error_line(tmp_path, content):
     assert result.returncode == 2 and "Traceback" not in result.stderr
     errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and str(readme) in errors[0], result.stderr
+
+
+def test_readme_naming_no_file_fails_before_reading_or_writing_anything():
+    """The command as typed from the project root, with the defaults (the paper suite): the bad
+    --readme is reported first, so the committed benchmarks/results are left as they are."""
+    results = ROOT / "benchmarks" / "results"
+    before = {p: p.stat().st_mtime_ns for p in results.rglob("*")}
+    cmd = [sys.executable, "benchmarks/report.py", "--readme", "/no/such/file"]
+    result = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert_clean_error(result, "/no/such/file", "no such file")
+    assert {p: p.stat().st_mtime_ns for p in results.rglob("*")} == before
