@@ -46,6 +46,10 @@ class Args:
     """final performance: mean over this many last training episodes"""
     seed: int = 0
     """seed of the bootstrap confidence intervals"""
+    merge_export: str = ""
+    """add the groups of this earlier curves.json that the runs lack, marked as earlier code's"""
+    merge_label: str = "earlier code"
+    """what the merged groups were measured on (shown in the table's note)"""
     readme: str = ""
     """also write table and figures into this README, between <!-- results:{suite}:start/end -->"""
 
@@ -219,7 +223,8 @@ def table(groups: dict, window: int) -> str:
         sps = np.mean([r["charts/SPS"][-1][1] for r in runs if r.get("charts/SPS")])
         wall = np.mean([r["wall_time"] for r in runs])
         f = ".2f" if goal else ".0f"
-        rows.append(f"| {env_id} | {LABELS.get(name, name)} | {len(runs)} "
+        mark = " †" if any("measured_on" in r for r in runs) else ""
+        rows.append(f"| {env_id} | {LABELS.get(name, name)}{mark} | {len(runs)} "
                     f"| {final.mean():{f}} ± {final.std(ddof=1):{f}} | {np.median(final):{f}} "
                     f"| {iqm(final):{f}} | {final_eval.mean():{f}} | {reach_text} | {sps:.0f} "
                     f"| {wall:.0f} |")  # fmt: skip
@@ -341,6 +346,12 @@ def main(args: Args) -> int:
             )
             return 2
         groups = collect(runs_dir, args.window)
+        if args.merge_export:  # rows the runs lack, from an earlier export, kept visibly apart
+            earlier = json.loads(Path(args.merge_export).read_text())
+            for group, runs in earlier.items():
+                if group not in groups:
+                    groups[group] = {seed: run | {"measured_on": args.merge_label}
+                                     for seed, run in runs.items()}  # fmt: skip
         (results / "curves.json").write_text(json.dumps(groups, separators=(",", ":")))
     rng = np.random.default_rng(args.seed)
 
@@ -367,9 +378,14 @@ def main(args: Args) -> int:
                 episodes.setdefault(group.split("__")[1], set()).add(run["args"]["eval_episodes"])
     per_task = "; ".join(f"{e}: {' or '.join(sorted(n))}" for e, n in sorted(episodes.items()))
     eval_note = f" (episodes per evaluation: {per_task})" if per_task else ""
+    earlier = sorted({r["measured_on"] for g in groups.values() for r in g.values()
+                      if "measured_on" in r})  # fmt: skip
+    merged_note = (
+        f"† measured on {', '.join(earlier)}, not re-run on this code.\n\n" if earlier else ""
+    )
     text = f"""{table(groups, args.window)}
 
-{success_table(groups)}
+{merged_note}{success_table(groups)}
 
 How this was measured: every row is the runs of `benchmarks/run.py --suite {args.suite}` that
 finished, read from their TensorBoard event files by `benchmarks/report.py`. *final*: the mean

@@ -121,3 +121,22 @@ def test_readme_naming_no_file_fails_before_reading_or_writing_anything():
     result = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert_clean_error(result, "/no/such/file", "no such file")
     assert {p: p.stat().st_mtime_ns for p in results.rglob("*")} == before
+
+
+def test_rows_merged_from_an_earlier_export_are_marked(tmp_path):
+    """--merge-export keeps rows the runs lack (say, Hopper runs not re-run on new code), marked
+    with † and named in the note; rows the runs have come from the runs."""
+    old, new = tmp_path / "runs" / "old", tmp_path / "runs" / "paper"
+    write_run(old, "algo", "Hopper-v5", 1, [100.0] * 10)
+    write_run(old, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 0.0])
+    assert report.main(report.Args(suite="old", runs_dir=str(tmp_path / "runs"),
+                                   results_dir=str(tmp_path / "old_results"))) == 0  # fmt: skip
+    write_run(new, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [1.0, 1.0])
+    args = report.Args(suite="paper", runs_dir=str(tmp_path / "runs"),
+                       results_dir=str(tmp_path / "results"),
+                       merge_export=str(tmp_path / "old_results" / "curves.json"),
+                       merge_label="commit abc")  # fmt: skip
+    assert report.main(args) == 0
+    text = (tmp_path / "results" / "results.md").read_text()
+    assert "| Hopper-v5 | algo † | 1 |" in text and "† measured on commit abc" in text
+    assert "| FetchReach-v4 | IPG+HER | 1 | 1.00" in text  # the new run, not the merged one
