@@ -383,23 +383,22 @@ def main(args: Args) -> int:
     merged_note = (
         f"† measured on {', '.join(earlier)}, not re-run on this code.\n\n" if earlier else ""
     )
+    success = success_table(groups)
+    success_block = f"{success}\n\n" if success else ""
     text = f"""{table(groups, args.window)}
 
-{merged_note}{success_table(groups)}
-
-How this was measured: every row is the runs of `benchmarks/run.py --suite {args.suite}` that
-finished, read from their TensorBoard event files by `benchmarks/report.py`. *final*: the mean
-return of the last {args.window} training episodes (stochastic policy); on FetchReach the success
-rate of the last 100 training episodes. Mean ± sample std, median and interquartile mean (IQM)
-over seeds.
-*final eval*: the last evaluation of the deterministic policy{eval_note}. *steps to threshold*:
-first step where the mean of the last {args.window} training returns (once there are
-{args.window}) reaches 2000 (Hopper), or where an evaluation reaches 0.9 success (FetchReach);
-median over all seeds, a seed that never reached it counting as never. *SPS*:
-environment steps per second of training, evaluation excluded; *wall time*: first to last logged
-event. Curves: mean over seeds with a 95% bootstrap confidence band, Hopper smoothed over 20
-logged episodes, FetchReach returns over 10. The success table gives, for goal tasks, the median
-[min, max] over seeds of the last evaluation at or before each budget.
+{merged_note}{success_block}How this was measured: every row is the runs of
+`benchmarks/run.py --suite {args.suite}` that finished, read from their TensorBoard event files
+by `benchmarks/report.py`. *final*: the mean return of the last {args.window} training episodes
+(stochastic policy); on FetchReach the success rate of the last 100 training episodes. Mean ±
+sample std, median and interquartile mean (IQM) over seeds. *final eval*: the last evaluation of
+the deterministic policy{eval_note}. *steps to threshold*: first step where the mean of the last
+{args.window} training returns (once there are {args.window}) reaches 2000 (Hopper), or where an
+evaluation reaches 0.9 success (FetchReach); median over all seeds, a seed that never reached it
+counting as never. *SPS*: environment steps per second of training, evaluation excluded; *wall
+time*: first to last logged event. Curves: mean over seeds with a 95% bootstrap confidence band,
+Hopper smoothed over 20 logged episodes, FetchReach returns over 10. The success table gives,
+for goal tasks, the median [min, max] over seeds of the last evaluation at or before each budget.
 """
     (results / "results.md").write_text(text)
     print(text)
