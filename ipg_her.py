@@ -186,7 +186,7 @@ class Args:
 
 def check_args(args: Args, argv: list[str]) -> None:
     """The checks every script shares (``common/cli.py``), then IPG's and HER's."""
-    cli.check_common(args)
+    goal_task = cli.check_common(args)
     cli.check_positive(args, "critic_batch_size", "buffer_size", "off_policy_batch_size")
     cli.check_positive(args, "critic_learning_rate")
     if not 0.0 <= args.nu <= 1.0:
@@ -197,13 +197,9 @@ def check_args(args: Args, argv: list[str]) -> None:
         cli.fail("--critic-steps, --learning-starts and --her-n-sampled-goal must be non-negative")
     her_flags = ("--her", "--her-n-sampled-goal", "--her-goal-selection-strategy")
     given = [a.split("=")[0] for a in argv if a.split("=")[0] in her_flags]
-    if given and not is_goal_task(args.env_id):
+    if given and not goal_task:
         cli.fail(f"{given[0]} needs a goal task (Dict observation with desired_goal); "
                  f"{args.env_id} has none")  # fmt: skip
-
-
-def is_goal_task(env_id: str) -> bool:
-    return isinstance(gym.spec(env_id).make().observation_space, gym.spaces.Dict)
 
 
 # ENV SETUP

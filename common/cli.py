@@ -59,11 +59,12 @@ def check_positive(args, *names: str) -> None:
             fail(f"{flag(name)} must be positive, got {getattr(args, name)}")
 
 
-def check_common(args) -> None:
+def check_common(args) -> bool:
     """The checks every script needs: a task that exists and that these scripts can drive,
     positive sizes and learning rates, a budget of at least one batch that splits into
-    minibatches, gamma and lambda in range, and ``--capture-video``'s prerequisites."""
-    check_task(args.env_id)
+    minibatches, gamma and lambda in range, and ``--capture-video``'s prerequisites. Returns
+    whether the task is a goal task."""
+    goal_task = check_task(args.env_id)
     check_positive(args, "total_timesteps", "num_envs", "num_steps", "num_minibatches")
     check_positive(args, "update_epochs", "eval_episodes", "learning_rate")
     if args.seed < 0:
@@ -87,12 +88,13 @@ def check_common(args) -> None:
         fail("--kl-target must be positive and --beta-init non-negative")
     if args.capture_video:
         check_video(args.env_id)
+    return goal_task
 
 
-def check_task(env_id: str) -> None:
+def check_task(env_id: str) -> bool:
     """The task is registered, its dependencies are installed, its actions are continuous and
     its observations a vector or a goal Dict (``observation``, ``achieved_goal``,
-    ``desired_goal``, each a vector)."""
+    ``desired_goal``, each a vector). Returns whether it is a goal task."""
     if env_id not in gym.registry:
         fail(f"unknown --env-id {env_id!r}; use a registered id such as Hopper-v5 or FetchReach-v4")
     try:
@@ -114,6 +116,7 @@ def check_task(env_id: str) -> None:
     if not (isinstance(observation_space, gym.spaces.Box) or goal_task):
         fail(f"{env_id}'s observations are not supported: a vector (Box) or a goal Dict with "
              f"vector {', '.join(goal_keys)} are")  # fmt: skip
+    return goal_task
 
 
 def check_video(env_id: str) -> None:

@@ -49,12 +49,12 @@ class Args:
 class Policy:
     """A saved policy as a function of a raw environment observation: ``action = policy(obs)``."""
 
-    def __init__(self, script, agent, normalizer, env_id: str, state: dict, raw_env: gym.Env):
+    def __init__(self, script, agent, normalizer, env_id: str, state: dict, raw_spaces: tuple):
         self.script, self.agent, self.normalizer = script, agent, normalizer
         self.env_id, self.args = env_id, state["args"]
         self.last_eval_seeds = state["last_eval_seeds"]
-        self.obs_space = raw_env.observation_space
-        self.low, self.high = raw_env.action_space.low, raw_env.action_space.high
+        self.obs_space, action_space = raw_spaces  # the environment's own, before any wrapper
+        self.low, self.high = action_space.low, action_space.high
 
     def __call__(self, obs, stochastic: bool = False) -> np.ndarray:
         if self.script.__name__ == "ipg_her":
@@ -84,8 +84,11 @@ def load_policy(path: str, env_id: str | None = None) -> Policy:
     if ROOT not in sys.path:
         sys.path.insert(0, ROOT)
     script = importlib.import_module(state["script"])
-    raw_env = gym.make(env_id)
-    obs_space, act_space = script.make_env(env_id)().observation_space, raw_env.action_space
+    raw_env, env = gym.make(env_id), script.make_env(env_id)()
+    raw_spaces = raw_env.observation_space, raw_env.action_space
+    obs_space, act_space = env.observation_space, env.action_space  # what the policy sees
+    raw_env.close()
+    env.close()
     if not isinstance(act_space, gym.spaces.Box):
         raise ValueError(f"{env_id} has {type(act_space).__name__} actions, the policy Box ones")
     act_dim = act_space.shape[0]
@@ -109,7 +112,7 @@ def load_policy(path: str, env_id: str | None = None) -> Policy:
         )
     agent.load_state_dict(state["agent"])
     normalizer.load_state_dict(state["normalizer" if state["script"] == "ipg_her" else "obs_rms"])
-    return Policy(script, agent, normalizer, env_id, state, raw_env)
+    return Policy(script, agent, normalizer, env_id, state, raw_spaces)
 
 
 def main(argv: list[str] | None = None) -> int:
