@@ -57,6 +57,7 @@ when collected, since the policy must be updated on the inputs it acted on.
 """
 
 import copy
+import functools
 import os
 import random
 import sys
@@ -73,6 +74,7 @@ import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
 from common import checkpoint, cli, seeding
+from common.evaluate import BackgroundEvaluator
 from common.gae import compute_gae
 from common.her import HerReplayBuffer, ReplayBuffer
 from common.normalizer import InputNormalizer, RunningMeanStd
@@ -104,6 +106,8 @@ class Args:
     """evaluate the deterministic (mean) policy every this many env steps (0: only at the end)"""
     eval_episodes: int = 20
     """episodes per evaluation"""
+    eval_workers: int = 1
+    """evaluate in a background process, so that training goes on meanwhile (0: in this one)"""
     torch_threads: int = 1
     """torch intra-op threads; one is fastest for these small networks (measured)"""
 
@@ -193,8 +197,9 @@ def check_args(args: Args, argv: list[str]) -> None:
         cli.fail(f"--nu must be in [0, 1], got {args.nu}")
     if not 0.0 < args.tau <= 1.0:
         cli.fail(f"--tau must be in (0, 1], got {args.tau}")
-    if args.critic_steps < 0 or args.learning_starts < 0 or args.her_n_sampled_goal < 0:
-        cli.fail("--critic-steps, --learning-starts and --her-n-sampled-goal must be non-negative")
+    for name in ("critic_steps", "learning_starts", "her_n_sampled_goal", "eval_workers"):
+        if getattr(args, name) < 0:
+            cli.fail(f"--{name.replace('_', '-')} must be non-negative, got {getattr(args, name)}")
     her_flags = ("--her", "--her-n-sampled-goal", "--her-goal-selection-strategy")
     given = [a.split("=")[0] for a in argv if a.split("=")[0] in her_flags]
     if given and not goal_task:
@@ -308,8 +313,10 @@ def collect_rollout(
         ro["rewards"][t] = torch.as_tensor(reward)
         ro["terminations"][t] = torch.as_tensor(terminated)
         ro["episode_ends"][t] = torch.as_tensor(ended)
-        real_next_obs = copy.deepcopy(next_raw_obs)
         # SAME_STEP autoreset: where an episode ended, next_raw_obs[i] is the next one's first
+        real_next_obs = next_raw_obs
+        if ended.any():  # copy only then: most steps end no episode
+            real_next_obs = copy.deepcopy(next_raw_obs)
         for i in np.flatnonzero(ended):
             if norm.goal_task:
                 for key in real_next_obs:
@@ -393,19 +400,33 @@ def make_batch(
 
 
 def sample_replay(
-    rb: ReplayBuffer, norm: InputNormalizer, reward_scale: float, batch_size: int
-) -> dict:
-    """A (hindsight-relabelled) replay batch as tensors, inputs normalised and rewards scaled by
-    the current statistics."""
-    data = rb.sample(batch_size)
+    rb: ReplayBuffer, norm: InputNormalizer, reward_scale: float, batch_size: int, count: int = 1
+) -> list[dict]:
+    """``count`` (hindsight-relabelled) replay batches as dicts of tensors, inputs normalised and
+    rewards scaled by the current statistics.
+
+    The batches come from one draw of ``count * batch_size`` transitions, split: the same
+    distribution as ``count`` draws (nothing changes the buffer or the statistics in between),
+    at a fraction of the per-call cost.
+    """
+    data = rb.sample(batch_size * count)
     goal = data["desired_goal"] if norm.goal_task else None
-    return {
+    tensors = {
         "obs": norm(data["obs"], goal),
         "next_obs": norm(data["next_obs"], goal),
         "actions": torch.as_tensor(data["actions"]),
         "rewards": torch.as_tensor(data["rewards"] * reward_scale),
         "terminations": torch.as_tensor(data["terminations"]),
     }
+    chunks = {key: t.split(batch_size) for key, t in tensors.items()}
+    return [{key: chunks[key][i] for key in chunks} for i in range(count)]
+
+
+def replay_state_batches(rb: ReplayBuffer, norm: InputNormalizer, batch_size: int, count: int):
+    """The off-policy term's states s ~ beta: ``count`` replay batches, drawn at the first
+    ``next`` (a generator: an update that never asks draws nothing)."""
+    for batch in sample_replay(rb, norm, 1.0, batch_size, count):
+        yield batch["obs"]
 
 
 # ALGO LOGIC: the critic step (eq. 6-7)
@@ -499,11 +520,13 @@ def ipg_update(
         for start in range(0, batch_size, minibatch_size):
             mb = perm[start : start + minibatch_size]
             pi = agent.dist(b["obs"][mb])
-            ratio = (pi.log_prob(b["actions"][mb]).sum(-1) - b["logprobs"][mb]).exp()  # r_t(theta)
             pi_old_mb = Normal(b["mean"][mb], b["std"][mb])
             kl = kl_divergence(pi_old_mb, pi).sum(-1).mean()  # analytic Gaussian KL
-            on_term = -(ratio * learning_signal[mb]).mean()  # likelihood-ratio part, eq. 5's
-            pg_loss = (1.0 - args.nu) * on_term + beta * kl
+            pg_loss = beta * kl
+            if args.nu < 1:  # the likelihood-ratio part, eq. 5's (weight 0 at nu = 1: skipped)
+                logratio = pi.log_prob(b["actions"][mb]).sum(-1) - b["logprobs"][mb]
+                on_term = -(logratio.exp() * learning_signal[mb]).mean()  # r_t(theta) A
+                pg_loss = pg_loss + (1.0 - args.nu) * on_term
             if use_off_policy:
                 on_policy = args.off_policy_states == "batch"
                 s_off = b["obs"][mb] if on_policy else replay_states()
@@ -580,6 +603,7 @@ if __name__ == "__main__":
     args = cli.parse_args(Args)
     check_args(args, sys.argv[1:])
     batch_size = args.num_envs * args.num_steps
+    minibatch_size = batch_size // args.num_minibatches
     num_iterations = args.total_timesteps // batch_size
     run_dir, writer = cli.start_run(args)
 
@@ -646,6 +670,7 @@ if __name__ == "__main__":
         qf=qf,
         qf_target=qf_target,
     )
+    evaluator = BackgroundEvaluator(args.eval_workers)
     progress, latest = cli.Progress(args.total_timesteps), ""
     recent_success = []  # is_success of the last 100 training episodes (goal tasks)
     raw_obs, _ = envs.reset(seed=streams.env_seeds)
@@ -681,8 +706,10 @@ if __name__ == "__main__":
             # the new data
             learning = global_step >= args.learning_starts and rb.num_sampleable() > 0
             if learning and args.critic_steps > 0:
-                for _ in range(args.critic_steps):
-                    data = sample_replay(rb, norm, reward_scale, args.critic_batch_size)
+                batches = sample_replay(
+                    rb, norm, reward_scale, args.critic_batch_size, count=args.critic_steps
+                )
+                for data in batches:
                     critic_loss, q_values = critic_step(
                         qf, qf_target, q_optimizer, agent, data,
                         gamma=args.gamma, tau=args.tau,
@@ -697,7 +724,9 @@ if __name__ == "__main__":
                 b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
 
             # ALGO LOGIC: the IPG update (eq. 10 on eq. 5)
-            replay_states = lambda: sample_replay(rb, norm, 1.0, args.off_policy_batch_size)["obs"]
+            minibatch_steps = args.update_epochs * len(range(0, batch_size, minibatch_size))
+            states = replay_state_batches(rb, norm, args.off_policy_batch_size, minibatch_steps)
+            replay_states = functools.partial(next, states)
             beta, stats = ipg_update(
                 agent, optimizer, b, beta, args, qf=qf if learning else None,
                 replay_states=replay_states,
@@ -721,18 +750,23 @@ if __name__ == "__main__":
             if args.use_cv:
                 writer.add_scalar("ipg/cv_mean", b["cv"].mean().item(), global_step)
 
-            # TRY NOT TO MODIFY: evaluate the deterministic policy
+            # TRY NOT TO MODIFY: evaluate the deterministic policy (a snapshot of it, in the
+            # background with --eval-workers 1: training goes on meanwhile)
             due = args.eval_freq > 0 and global_step - last_eval >= args.eval_freq
             if iteration == num_iterations or due:
                 last_eval, eval_seeds = global_step, streams.eval_seeds(args.eval_episodes)
                 video_dir = os.path.join(run_dir, "videos", f"step{global_step}")
-                eval_returns, eval_success = evaluate(
-                    agent, norm, args.env_id, eval_seeds, video_dir if args.capture_video else None
-                )
-                writer.add_scalar("eval/episodic_return", eval_returns.mean(), global_step)
-                message = f"step={global_step} eval_return={eval_returns.mean():.1f}"
+                evaluator.submit(
+                    global_step, evaluate, agent, norm, args.env_id, eval_seeds,
+                    video_dir if args.capture_video else None,
+                )  # fmt: skip
+            for step, (eval_returns, eval_success) in evaluator.finished(
+                wait=iteration == num_iterations
+            ):
+                writer.add_scalar("eval/episodic_return", eval_returns.mean(), step)
+                message = f"step={step} eval_return={eval_returns.mean():.1f}"
                 if len(eval_success):
-                    writer.add_scalar("eval/success_rate", eval_success.mean(), global_step)
+                    writer.add_scalar("eval/success_rate", eval_success.mean(), step)
                     message += f" eval_success={eval_success.mean():.2f}"
                 progress.print(f"{message} SPS={int(global_step / train_time)}")
             if args.save_model and args.save_freq and global_step - last_save >= args.save_freq:
@@ -753,6 +787,7 @@ if __name__ == "__main__":
         if args.save_model:
             save()
             progress.print(f"model saved to {model_path}")
+        evaluator.close()
         envs.close()
         writer.close()
     progress.close(global_step, eval_returns, eval_success)

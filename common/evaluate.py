@@ -14,9 +14,14 @@ task and sizes, and the normaliser's statistics are frozen as they were saved. W
 printed here is the run's own last ``eval/episodic_return``.
 """
 
+import collections
+import copy
 import importlib
+import multiprocessing
 import os
+import signal
 import sys
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
 
 import gymnasium as gym
@@ -113,6 +118,48 @@ def load_policy(path: str, env_id: str | None = None) -> Policy:
     agent.load_state_dict(state["agent"])
     normalizer.load_state_dict(state["normalizer" if state["script"] == "ipg_her" else "obs_rms"])
     return Policy(script, agent, normalizer, env_id, state, raw_spaces)
+
+
+def _worker_init() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the training process's to handle
+    torch.set_num_threads(1)
+
+
+class BackgroundEvaluator:
+    """Evaluations that run in a worker process while training goes on (``workers=1``), or at
+    once in this process (``workers=0``): the results are the same, only the wall time differs.
+
+    ``submit(step, evaluate, *args)`` runs ``evaluate(*args)`` on a deep copy of ``args`` taken
+    now (a snapshot of the policy at ``step``); ``finished()`` returns the evaluations that are
+    done, in the order they were submitted, as ``(step, result)``; ``finished(wait=True)`` waits
+    for all of them. ``evaluate`` must be a module-level function (the worker imports it).
+    """
+
+    def __init__(self, workers: int):
+        ctx = multiprocessing.get_context("spawn")  # no fork of a process running torch
+        self.pool = ProcessPoolExecutor(workers, ctx, _worker_init) if workers > 0 else None
+        self.pending = collections.deque()
+
+    def submit(self, step: int, evaluate, *args) -> None:
+        args = copy.deepcopy(args)
+        if self.pool is None:
+            future = Future()
+            future.set_result(evaluate(*args))
+        else:
+            future = self.pool.submit(evaluate, *args)
+        self.pending.append((step, future))
+
+    def finished(self, wait: bool = False) -> list[tuple[int, object]]:
+        done = []
+        while self.pending and (wait or self.pending[0][1].done()):
+            step, future = self.pending.popleft()
+            done.append((step, future.result()))
+        return done
+
+    def close(self) -> None:
+        """Stop the worker, dropping evaluations not yet finished."""
+        if self.pool is not None:
+            self.pool.shutdown(wait=False, cancel_futures=True)
 
 
 def main(argv: list[str] | None = None) -> int:

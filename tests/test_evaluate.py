@@ -125,3 +125,21 @@ def test_capture_video_records_an_mp4_with_frames(tmp_path, script, flags):
     frames = imageio.get_reader(str(videos[0]), "ffmpeg").count_frames()
     assert frames > 10, frames
     assert np.all([v.stat().st_size > 1000 for v in videos])
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_background_evaluator_returns_results_in_submission_order(workers):
+    """The worker changes when an evaluation runs, not what it returns or in what order; the
+    arguments are copied at submission (a snapshot, whatever training does next)."""
+    from common.evaluate import BackgroundEvaluator
+
+    evaluator = BackgroundEvaluator(workers)
+    weights = np.array([1.0, 2.0])
+    for step in (100, 200, 300):
+        evaluator.submit(step, np.multiply, weights, step)
+        weights += 1.0  # training moves on
+    done = evaluator.finished(wait=True)
+    evaluator.close()
+    assert [step for step, _ in done] == [100, 200, 300]
+    for (_, result), expected in zip(done, ([100, 200], [400, 600], [900, 1200]), strict=True):
+        np.testing.assert_array_equal(result, expected)

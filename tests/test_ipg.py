@@ -264,7 +264,7 @@ def test_replay_rewards_are_scaled_like_gae_rewards():
         for t in range(10):
             rb.add(np.full((1, 2), t), np.zeros((1, 1)), np.array([t - 5.0]),
                    np.full((1, 2), t + 1), np.zeros(1), np.array([t == 9]))  # fmt: skip
-        batches.append(ipg_her.sample_replay(rb, InputNormalizer(2, 0), scale, 32))
+        batches.append(ipg_her.sample_replay(rb, InputNormalizer(2, 0), scale, 32)[0])
     torch.testing.assert_close(batches[1]["rewards"], 0.25 * batches[0]["rewards"])
     assert batches[0]["rewards"].abs().sum() > 0
 
