@@ -113,6 +113,8 @@ class Args:
     """evaluate in a background process, so that training goes on meanwhile (0: in this one)"""
     torch_threads: int = 1
     """torch intra-op threads; one is fastest for these small networks (measured)"""
+    diagnostics: bool = True
+    """log the gradient diagnostics ipg/* every update (norms, effective nu, variances)"""
 
     # Algorithm specific arguments
     env_id: str = "FetchReach-v4"
@@ -570,6 +572,64 @@ def ipg_update(
     return beta, stats
 
 
+# DIAGNOSTICS: what the mixture does (logged as ipg/*; none of it changes the update)
+def gradient_diagnostics(
+    agent: Agent, qf: QNetwork, b: dict, args: Args, off_states: torch.Tensor, chunks: int = 4
+) -> dict:
+    """Measured on the batch ``b`` before the update, at theta = theta_old:
+
+    * ``on_grad_norm``, ``off_grad_norm``: norms of the two weighted terms of the update's
+      policy gradient, (1 - nu) g_on and b g_off, normalised as the update normalises them, and
+      ``effective_nu`` = |off| / (|on| + |off|), the share the off-policy term really has;
+    * ``grad_var``, ``grad_var_cv``: the trace of the covariance, over ``chunks`` disjoint random
+      chunks of the batch, of the chunk's policy-gradient estimate without the control variate,
+      grad log pi A_hat, and with it, grad log pi (A_hat - A_bar) + grad_theta Q_w(s, mu(s))
+      (eq. 8 with eta = 1: the same expectation), on the raw advantage scale. Their ratio is
+      Q-Prop's claim: below 1 if the control variate reduces variance;
+    * ``corr_adv_cv``: the correlation of A_hat with A_bar (eq. 9) over the batch;
+    * ``explained_variance``: 1 - Var(R - V) / Var(R) of the baseline V on the batch.
+    """
+    params = agent.actor_parameters()
+
+    def grad(loss: torch.Tensor) -> torch.Tensor:
+        grads = torch.autograd.grad(loss, params, allow_unused=True)
+        return torch.cat([(torch.zeros_like(p) if g is None else g).flatten()
+                          for p, g in zip(params, grads, strict=True)])  # fmt: skip
+
+    adv, cv = b["advantages"], control_variate(qf, agent, b["obs"], b["actions"])
+    logp = lambda rows: agent.dist(b["obs"][rows]).log_prob(b["actions"][rows]).sum(-1)  # noqa: E731
+    everything = torch.arange(len(adv))
+    signal = adv - cv if args.use_cv else adv
+    sigma = signal.std() + 1e-8 if args.norm_adv else torch.ones(())
+    if args.norm_adv:
+        signal = (signal - signal.mean()) / sigma
+    g_on = grad(-(logp(everything) * signal).mean())
+    a_off = agent.actor_mean(off_states)
+    if args.q_bar == "sample":
+        a_off = a_off + agent.actor_logstd.exp() * torch.randn_like(a_off)
+    off_scale = 1.0 / sigma if args.normalization == "unbiased" else 1.0  # as the update
+    g_off = grad(-qf(off_states, a_off).mean() * off_scale)
+    on = (1.0 - args.nu) * g_on.norm().item()
+    off = (1.0 if args.use_cv else args.nu) * g_off.norm().item()
+    lr_grads, cv_grads = [], []
+    for rows in torch.randperm(len(adv)).chunk(chunks):
+        lr_grads.append(grad(-(logp(rows) * adv[rows]).mean()))
+        analytic = -qf(b["obs"][rows], agent.actor_mean(b["obs"][rows])).mean()
+        cv_grads.append(grad(-(logp(rows) * (adv[rows] - cv[rows])).mean() + analytic))
+    with torch.no_grad():
+        values = agent.get_value(b["obs"])
+    returns = b["returns"]
+    return {
+        "on_grad_norm": on,
+        "off_grad_norm": off,
+        "effective_nu": off / (on + off + 1e-12),
+        "grad_var": torch.stack(lr_grads).var(0).sum().item(),
+        "grad_var_cv": torch.stack(cv_grads).var(0).sum().item(),
+        "corr_adv_cv": torch.corrcoef(torch.stack([adv, cv]))[0, 1].item(),
+        "explained_variance": (1 - (returns - values).var() / (returns.var() + 1e-8)).item(),
+    }
+
+
 def evaluate(
     agent: Agent,
     norm: InputNormalizer,
@@ -727,6 +787,14 @@ if __name__ == "__main__":
             if args.use_cv:
                 b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
 
+            # DIAGNOSTICS: gradient norms and variances before the update (ipg/*)
+            diagnostics = {}
+            if args.diagnostics and learning:
+                off_states = b["obs"]
+                if args.off_policy_states == "replay":
+                    off_states = sample_replay(rb, norm, 1.0, args.off_policy_batch_size)[0]["obs"]
+                diagnostics = gradient_diagnostics(agent, qf, b, args, off_states)
+
             # ALGO LOGIC: the IPG update (eq. 10 on eq. 5)
             minibatch_steps = args.update_epochs * len(range(0, batch_size, minibatch_size))
             states = replay_state_batches(rb, norm, args.off_policy_batch_size, minibatch_steps)
@@ -753,6 +821,8 @@ if __name__ == "__main__":
             writer.add_scalar("ipg/signal_std", stats["signal_std"], global_step)
             if args.use_cv:
                 writer.add_scalar("ipg/cv_mean", b["cv"].mean().item(), global_step)
+            for key, value in diagnostics.items():
+                writer.add_scalar(f"ipg/{key}", value, global_step)
 
             # TRY NOT TO MODIFY: evaluate the deterministic policy (a snapshot of it, in the
             # background with --eval-workers 1: training goes on meanwhile)

@@ -24,10 +24,14 @@ import tyro  # noqa: E402
 
 TAGS = ("charts/episodic_return", "charts/episodic_length", "charts/success_rate",
         "charts/policy_entropy", "charts/SPS", "eval/episodic_return",
-        "eval/success_rate")  # fmt: skip
+        "eval/success_rate", "ipg/effective_nu", "ipg/grad_var", "ipg/grad_var_cv")  # fmt: skip
 THRESHOLDS = {
     "Hopper-v5": ("charts/episodic_return", 2000.0),
     "FetchReach-v4": ("eval/success_rate", 0.9),
+    "FetchPush-v4": ("eval/success_rate", 0.5),
+}
+BUDGETS = {  # the success table's columns: FetchReach's scale, or FetchPush's
+    "push": (100_000, 250_000, 500_000, 1_000_000, 1_500_000),
 }
 LABELS = {"ppo_kl": "PPO-KL", "qprop_ppo": "Q-Prop", "ipg": "IPG (no HER)", "ipg_her": "IPG+HER"}
 
@@ -107,9 +111,12 @@ def collect(runs_dir: Path, window: int) -> dict:
             "charts/episodic_length",
             "charts/success_rate",
             "charts/policy_entropy",
+            "ipg/effective_nu",
+            "ipg/grad_var",
+            "ipg/grad_var_cv",
         ):
             if tag in run:
-                run[tag] = downsample(run[tag])
+                run[tag] = downsample(run[tag], 100 if tag.startswith("ipg/") else 300)
         groups[f"{name}__{env_id}"][seed.removeprefix("seed")] = run
     return groups
 
@@ -317,6 +324,75 @@ def draw_paper_figures(groups: dict, results: Path, rng) -> list[str]:
     return ["fig3_hopper.png", "fig4_fetchreach.png", "fig5_fetchreach_success.png"]
 
 
+def success_at(run: dict, budget: float) -> float:
+    """The last evaluation's success rate at or before ``budget`` steps (NaN: none yet)."""
+    return ([v for s, v in run.get("eval/success_rate", []) if s <= budget] or [np.nan])[-1]
+
+
+def mixing_variant(group: str) -> tuple[float, str, str]:
+    """``ipg_her_nu0.2_b100_cv__FetchReach-v4`` -> (0.2, "b100_cv", "FetchReach-v4")."""
+    name, env_id = group.split("__")
+    nu, variant = name.removeprefix("ipg_her_nu").split("_", 1)
+    return float(nu), variant, env_id
+
+
+def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> list[str]:
+    """Per task: evaluation success against nu, finally and at an ``early`` budget, one line per
+    variant (on-policy batch, control variate), mean over seeds with 95% bootstrap intervals;
+    and the diagnostics over training: effective nu and the control variate's variance ratio."""
+    figures = []
+    for env_id in sorted({mixing_variant(g)[2] for g in groups}):
+        variants = defaultdict(dict)  # variant -> {nu: [runs]}
+        for group, runs in groups.items():
+            nu, variant, env = mixing_variant(group)
+            if env == env_id:
+                variants[variant][nu] = list(runs.values())
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+        for ax, budget, title in ((axes[0], np.inf, "final"), (axes[1], early, f"@ {early:,}")):
+            for variant in sorted(variants):
+                nus = sorted(variants[variant])
+                values = [np.array([success_at(r, budget) for r in variants[variant][nu]])
+                          for nu in nus]  # fmt: skip
+                means = [np.nanmean(v) for v in values]
+                boot = [[np.nanmean(v[rng.integers(0, len(v), len(v))]) for _ in range(1000)]
+                        for v in values]  # fmt: skip
+                lo, hi = np.percentile(boot, 2.5, 1), np.percentile(boot, 97.5, 1)
+                seeds = min(len(v) for v in values)
+                ax.errorbar(nus, means, yerr=[np.subtract(means, lo), np.subtract(hi, means)],
+                            marker="o", capsize=3, label=f"{variant} ({seeds}+ seeds)")  # fmt: skip
+            ax.set_xlabel("nu")
+            ax.set_ylabel(f"eval success ({title})")
+            ax.set_title(env_id)
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=8)
+        fig.tight_layout()
+        figures.append(f"mixing_{env_id}_nu.png")
+        fig.savefig(results / figures[-1], dpi=100)
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+        for variant in sorted(variants):
+            for nu in sorted(variants[variant]):
+                runs = [r for r in variants[variant][nu] if r.get("ipg/effective_nu")]
+                if not runs:
+                    continue
+                steps, eff = np.array(runs[0]["ipg/effective_nu"]).T
+                axes[0].plot(steps, eff, label=f"nu {nu} {variant}", lw=1)
+                if "cv" not in variant:
+                    steps, var = np.array(runs[0]["ipg/grad_var"]).T
+                    _, var_cv = np.array(runs[0]["ipg/grad_var_cv"]).T
+                    axes[1].semilogy(steps, var_cv / var, label=f"nu {nu} {variant}", lw=1)
+        axes[0].set_ylabel("effective nu (first seed)")
+        axes[1].set_ylabel("grad variance with / without control variate (first seed)")
+        for ax in axes:
+            ax.set_xlabel("environment steps")
+            ax.set_title(env_id)
+            ax.grid(alpha=0.3)
+        axes[0].legend(fontsize=6, ncol=2)
+        fig.tight_layout()
+        figures.append(f"mixing_{env_id}_diagnostics.png")
+        fig.savefig(results / figures[-1], dpi=100)
+    return figures
+
+
 def main(args: Args) -> int:
     # a bad --readme is caught before anything is read or written
     readme = Path(args.readme)
@@ -357,6 +433,8 @@ def main(args: Args) -> int:
 
     if args.suite in ("paper", "quick"):  # quick has the paper's shape
         figures = draw_paper_figures(groups, results, rng)
+    elif args.suite == "mixing":
+        figures = draw_mixing_figures(groups, results, rng)
     else:  # one figure per task with every variant of the suite
         figures = []
         for env_id in sorted({g.split("__")[1] for g in groups}):
@@ -383,7 +461,7 @@ def main(args: Args) -> int:
     merged_note = (
         f"† measured on {', '.join(earlier)}, not re-run on this code.\n\n" if earlier else ""
     )
-    success = success_table(groups)
+    success = success_table(groups, BUDGETS.get(args.suite, (2500, 5000, 10000, 30000)))
     success_block = f"{success}\n\n" if success else ""
     text = f"""{table(groups, args.window)}
 
@@ -394,11 +472,12 @@ by `benchmarks/report.py`. *final*: the mean return of the last {args.window} tr
 sample std, median and interquartile mean (IQM) over seeds. *final eval*: the last evaluation of
 the deterministic policy{eval_note}. *steps to threshold*: first step where the mean of the last
 {args.window} training returns (once there are {args.window}) reaches 2000 (Hopper), or where an
-evaluation reaches 0.9 success (FetchReach); median over all seeds, a seed that never reached it
-counting as never. *SPS*: environment steps per second of training, evaluation excluded; *wall
-time*: first to last logged event. Curves: mean over seeds with a 95% bootstrap confidence band,
-Hopper smoothed over 20 logged episodes, FetchReach returns over 10. The success table gives,
-for goal tasks, the median [min, max] over seeds of the last evaluation at or before each budget.
+evaluation reaches 0.9 success (FetchReach; 0.5 on FetchPush); median over all seeds, a seed that
+never reached it counting as never. *SPS*: environment steps per second of training, evaluation
+excluded; *wall time*: first to last logged event. Curves: mean over seeds with a 95% bootstrap
+confidence band, Hopper smoothed over 20 logged episodes, FetchReach returns over 10. The success
+table gives, for goal tasks, the median [min, max] over seeds of the last evaluation at or before
+each budget.
 """
     (results / "results.md").write_text(text)
     print(text)

@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @dataclass
 class Args:
-    suite: Literal["paper", "ablations", "eta", "quick"] = "paper"
+    suite: Literal["paper", "ablations", "eta", "mixing", "push", "quick"] = "paper"
     """which grid to run"""
     seeds: tuple[int, ...] = ()
     """override the suite's seeds"""
@@ -42,6 +42,9 @@ class Args:
     """address of an existing Ray cluster (None: start a local Ray instance)"""
     dry_run: bool = False
     """print the commands and exit"""
+    push_steps: int = 1_500_000
+    """budget of the push suite's runs (part of their names: a run does not resume mid-way, so
+    a budget that one session cannot finish can be run at a smaller one first)"""
 
 
 @dataclass(frozen=True)
@@ -65,11 +68,13 @@ class Run:
 HOPPER_STEPS, FETCH_STEPS = 1_000_000, 30_000
 
 
-def suite_runs(suite: str, seeds: tuple[int, ...] = ()) -> list[Run]:
+def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_000) -> list[Run]:
     """The named grids. ``paper``: Figure 3 (Hopper: PPO-KL vs Q-Prop), Figures 4-5 (FetchReach:
     PPO-KL, Q-Prop, IPG without HER, IPG+HER); ``ablations``: Q-Prop's eta and normalisation,
     IPG's nu, control variate and HER settings; ``eta``: Q-Prop's eta modes against PPO-KL on
-    Hopper at 300k steps; ``quick``: the paper's shape on tiny budgets."""
+    Hopper at 300k steps; ``mixing``: IPG+HER on FetchReach at nu 0 to 1, with and without the
+    control variate, with a small and a large on-policy batch; ``push``: IPG+HER on FetchPush-v4;
+    ``quick``: the paper's shape on tiny budgets."""
     fetch = lambda name, script, *flags: (name, script, "FetchReach-v4", flags)  # noqa: E731
     hopper = lambda name, script, *flags: (name, script, "Hopper-v5", flags)  # noqa: E731
     fetch_eval = ("--total-timesteps", str(FETCH_STEPS), "--eval-freq", "2500")
@@ -115,6 +120,26 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = ()) -> list[Run]:
             hopper(f"qprop_{eta}_300k", "qprop_ppo.py", "--eta-mode", eta, *budget)
             for eta in ("batch-conservative", "conservative")
         ]
+    elif suite == "mixing":  # does an interpolated gradient (0 < nu < 1) beat both ends?
+        seeds = seeds or (1, 2, 3, 4, 5)
+        grid = []
+        # the on-policy batch: 2 envs x 50 steps or x 500, with the same critic steps and policy
+        # minibatch steps per environment step (0.5 and 0.1)
+        batches = {"b100": ("--num-steps", "50"),
+                   "b1000": ("--num-steps", "500", "--critic-steps", "500",
+                             "--num-minibatches", "10")}  # fmt: skip
+        for cv in (False, True):
+            for batch, flags in batches.items():
+                for nu in (0.0, 0.2, 0.5, 0.8, 1.0):
+                    if cv and nu == 1.0:  # the likelihood-ratio term has no weight: nu = 1 again
+                        continue
+                    name = f"ipg_her_nu{nu}_{batch}" + ("_cv" if cv else "")
+                    grid.append(fetch(name, "ipg_her.py", "--nu", str(nu), *flags,
+                                      *(("--use-cv",) if cv else ())))  # fmt: skip
+    elif suite == "push":
+        seeds = seeds or (1, 2, 3)
+        budget = ("--total-timesteps", str(push_steps), "--eval-freq", "25000")
+        grid = [(f"ipg_her_{push_steps // 1000}k", "ipg_her.py", "FetchPush-v4", budget)]
     else:  # quick
         seeds = seeds or (1,)
         tiny = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4")
@@ -179,7 +204,8 @@ def fmt(seconds: float) -> str:
 
 def main(args: Args) -> int:
     suite_dir = Path(args.out_dir) / args.suite
-    runs = [r for r in suite_runs(args.suite, args.seeds) if args.only in r.folder]
+    runs = suite_runs(args.suite, args.seeds, args.push_steps)
+    runs = [r for r in runs if args.only in r.folder]
     todo = [r for r in runs if not finished(suite_dir / r.folder)]
     skipped = len(runs) - len(todo)
     if args.dry_run:

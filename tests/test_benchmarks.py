@@ -67,7 +67,7 @@ def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path
 def test_a_failing_run_is_reported_and_the_others_finish(tmp_path, monkeypatch, capsys):
     good = run.suite_runs("quick")[2]  # FetchReach PPO-KL, a few seconds
     bad = run.Run("broken", "ppo_kl.py", "NoSuchEnv-v0", 1)
-    monkeypatch.setattr(run, "suite_runs", lambda suite, seeds=(): [bad, good])
+    monkeypatch.setattr(run, "suite_runs", lambda *args: [bad, good])
     assert run.main(run.Args(suite="quick", out_dir=str(tmp_path), workers=2)) == 1
     out = capsys.readouterr().out
     assert "1 done, 1 failed" in out and "failed: broken__NoSuchEnv-v0__seed1" in out
