@@ -128,8 +128,8 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         batches = {"b100": ("--num-steps", "50"),
                    "b1000": ("--num-steps", "500", "--critic-steps", "500",
                              "--num-minibatches", "10")}  # fmt: skip
-        for cv in (False, True):
-            for batch, flags in batches.items():
+        for batch, flags in batches.items():
+            for cv in (False, True):
                 for nu in (0.0, 0.2, 0.5, 0.8, 1.0):
                     if cv and nu == 1.0:  # the likelihood-ratio term has no weight: nu = 1 again
                         continue
