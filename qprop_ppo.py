@@ -457,6 +457,38 @@ def qprop_surrogate(
     return loss
 
 
+# DIAGNOSTICS: does the control variate reduce variance? (logged as qprop/*; changes nothing)
+def gradient_variance(agent: Agent, qf: QNetwork, b: dict, chunks: int = 8) -> dict:
+    """Q-Prop's claim, measured on the batch ``b`` at theta = theta_old: the trace of the
+    covariance, over ``chunks`` disjoint random chunks, of the chunk's policy-gradient estimate
+    without the control variate, grad log pi A_hat, and with it at eta = 1, grad log pi
+    (A_hat - A_bar) + grad_theta Q_w(s, mu(s)) (eq. 8: the same expectation); also the
+    correlation of A_hat with A_bar and the explained variance 1 - Var(R - V) / Var(R) of V."""
+    params = agent.actor_parameters()
+
+    def grad(loss: torch.Tensor, retain_graph: bool = False) -> torch.Tensor:
+        grads = torch.autograd.grad(loss, params, retain_graph=retain_graph, allow_unused=True)
+        return torch.cat([(torch.zeros_like(p) if g is None else g).flatten()
+                          for p, g in zip(params, grads, strict=True)])  # fmt: skip
+
+    adv, cv, obs = b["advantages"], b["cv"], b["obs"]
+    lr_grads, cv_grads = [], []
+    for rows in torch.randperm(len(adv)).chunk(chunks):
+        logp = agent.dist(obs[rows]).log_prob(b["actions"][rows]).sum(-1)
+        lr_grads.append(grad(-(logp * adv[rows]).mean(), retain_graph=True))
+        analytic = -qf(obs[rows], agent.actor_mean(obs[rows])).mean()
+        cv_grads.append(grad(-(logp * (adv[rows] - cv[rows])).mean() + analytic))
+    with torch.no_grad():
+        values = agent.get_value(obs)
+    returns = b["returns"]
+    return {
+        "grad_var": torch.stack(lr_grads).var(0).sum().item(),
+        "grad_var_cv": torch.stack(cv_grads).var(0).sum().item(),
+        "corr_adv_cv": torch.corrcoef(torch.stack([adv, cv]))[0, 1].item(),
+        "explained_variance": (1 - (returns - values).var() / (returns.var() + 1e-8)).item(),
+    }
+
+
 # ALGO LOGIC: the Q-Prop update: PPO-KL (eq. 5) with the control variate (eq. 8)
 def qprop_update(
     agent: Agent,
@@ -672,6 +704,8 @@ if __name__ == "__main__":
                 writer.add_scalar("qprop/eta", b["eta"].mean().item(), global_step)
                 cov = batch_covariance(b["advantages"], b["cv"])
                 writer.add_scalar("qprop/cov", cov, global_step)
+                for key, value in gradient_variance(agent, qf, b).items():
+                    writer.add_scalar(f"qprop/{key}", value, global_step)
 
             # ALGO LOGIC: the Q-Prop update (eq. 8 inside eq. 5)
             beta, stats = qprop_update(agent, optimizer, b, beta, args, qf if learning else None)
