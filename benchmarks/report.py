@@ -9,6 +9,7 @@ it was measured) and PNG figures in the shape of the paper's Figures 3-5.
 """
 
 import json
+import re
 import sys
 import warnings
 from collections import defaultdict
@@ -324,16 +325,17 @@ def draw_paper_figures(groups: dict, results: Path, rng) -> list[str]:
     return ["fig3_hopper.png", "fig4_fetchreach.png", "fig5_fetchreach_success.png"]
 
 
-def success_at(run: dict, budget: float) -> float:
-    """The last evaluation's success rate at or before ``budget`` steps (NaN: none yet)."""
-    return ([v for s, v in run.get("eval/success_rate", []) if s <= budget] or [np.nan])[-1]
+def value_at(run: dict, tag: str, budget: float) -> float:
+    """The last value of ``tag`` logged at or before ``budget`` steps (NaN: none yet)."""
+    return ([v for s, v in run.get(tag, []) if s <= budget] or [np.nan])[-1]
 
 
-def mixing_variant(group: str) -> tuple[float, str, str]:
-    """``ipg_her_nu0.2_b100_cv__FetchReach-v4`` -> (0.2, "b100_cv", "FetchReach-v4")."""
+def mixing_variant(group: str) -> tuple[float, str, str] | None:
+    """``ipg_her_nu0.2_b100_cv__FetchReach-v4`` -> (0.2, "b100_cv", "FetchReach-v4"); None for
+    a run without nu (Q-Prop)."""
     name, env_id = group.split("__")
-    nu, variant = name.removeprefix("ipg_her_nu").split("_", 1)
-    return float(nu), variant, env_id
+    match = re.search(r"nu([0-9.]+)_(.+)", name)
+    return (float(match[1]), match[2], env_id) if match else None
 
 
 def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> list[str]:
@@ -341,17 +343,21 @@ def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> 
     variant (on-policy batch, control variate), mean over seeds with 95% bootstrap intervals;
     and the diagnostics over training: effective nu and the control variate's variance ratio."""
     figures = []
-    for env_id in sorted({mixing_variant(g)[2] for g in groups}):
+    parsed = {g: mixing_variant(g) for g in groups}
+    for env_id in sorted({p[2] for p in parsed.values() if p}):
         variants = defaultdict(dict)  # variant -> {nu: [runs]}
         for group, runs in groups.items():
-            nu, variant, env = mixing_variant(group)
-            if env == env_id:
+            if parsed[group] and parsed[group][2] == env_id:
+                nu, variant, _ = parsed[group]
                 variants[variant][nu] = list(runs.values())
+        goal = env_id.startswith("Fetch")
+        tag = "eval/success_rate" if goal else "eval/episodic_return"
+        first = early if goal else 100_000  # the early budget, in steps
         fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-        for ax, budget, title in ((axes[0], np.inf, "final"), (axes[1], early, f"@ {early:,}")):
+        for ax, budget, title in ((axes[0], np.inf, "final"), (axes[1], first, f"@ {first:,}")):
             for variant in sorted(variants):
                 nus = sorted(variants[variant])
-                values = [np.array([success_at(r, budget) for r in variants[variant][nu]])
+                values = [np.array([value_at(r, tag, budget) for r in variants[variant][nu]])
                           for nu in nus]  # fmt: skip
                 means = [np.nanmean(v) for v in values]
                 boot = [[np.nanmean(v[rng.integers(0, len(v), len(v))]) for _ in range(1000)]
@@ -361,7 +367,7 @@ def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> 
                 ax.errorbar(nus, means, yerr=[np.subtract(means, lo), np.subtract(hi, means)],
                             marker="o", capsize=3, label=f"{variant} ({seeds}+ seeds)")  # fmt: skip
             ax.set_xlabel("nu")
-            ax.set_ylabel(f"eval success ({title})")
+            ax.set_ylabel(f"{tag.split('/')[1].replace('_', ' ')} (eval, {title})")
             ax.set_title(env_id)
             ax.grid(alpha=0.3)
             ax.legend(fontsize=8)
@@ -380,8 +386,8 @@ def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> 
                     steps, var = np.array(runs[0]["ipg/grad_var"]).T
                     _, var_cv = np.array(runs[0]["ipg/grad_var_cv"]).T
                     axes[1].semilogy(steps, var_cv / var, label=f"nu {nu} {variant}", lw=1)
-        axes[0].set_ylabel("effective nu (first seed)")
-        axes[1].set_ylabel("grad variance with / without control variate (first seed)")
+        axes[0].set_ylabel("effective nu (seed 1)")
+        axes[1].set_ylabel("gradient variance, with CV / without (seed 1)")
         for ax in axes:
             ax.set_xlabel("environment steps")
             ax.set_title(env_id)

@@ -73,8 +73,9 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     PPO-KL, Q-Prop, IPG without HER, IPG+HER); ``ablations``: Q-Prop's eta and normalisation,
     IPG's nu, control variate and HER settings; ``eta``: Q-Prop's eta modes against PPO-KL on
     Hopper at 300k steps; ``mixing``: IPG+HER on FetchReach at nu 0 to 1, with and without the
-    control variate, with a small and a large on-policy batch; ``push``: IPG+HER on FetchPush-v4;
-    ``quick``: the paper's shape on tiny budgets."""
+    control variate, with a small and a large on-policy batch, and IPG and Q-Prop variants on
+    Hopper at 300k steps (``--only FetchReach`` or ``--only Hopper`` runs one task); ``push``:
+    IPG+HER on FetchPush-v4; ``quick``: the paper's shape on tiny budgets."""
     fetch = lambda name, script, *flags: (name, script, "FetchReach-v4", flags)  # noqa: E731
     hopper = lambda name, script, *flags: (name, script, "Hopper-v5", flags)  # noqa: E731
     fetch_eval = ("--total-timesteps", str(FETCH_STEPS), "--eval-freq", "2500")
@@ -136,6 +137,24 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
                     name = f"ipg_her_nu{nu}_{batch}" + ("_cv" if cv else "")
                     grid.append(fetch(name, "ipg_her.py", "--nu", str(nu), *flags,
                                       *(("--use-cv",) if cv else ())))  # fmt: skip
+        # Hopper, 300k steps: ipg_her with PPO-KL's settings (at nu = 0 it is ppo_kl.py) and a
+        # critic trained about once per environment step after a real warm-up; the IPG paper's
+        # best variant (nu 0.2, control variate, on-policy states); Q-Prop with per-sample and
+        # batch eta and with 8x more critic work after a warm-up
+        hopper_ipg = ("--total-timesteps", "300000", "--num-envs", "4", "--num-steps", "512",
+                      "--num-minibatches", "32", "--learning-rate", "3e-4", "--gamma", "0.99",
+                      "--kl-target", "0.01", "--norm-reward", "--critic-steps", "2048",
+                      "--learning-starts", "10000", "--eval-freq", "20000")  # fmt: skip
+        grid += [hopper(f"ipg_nu{nu}_300k", "ipg_her.py", "--nu", str(nu), *hopper_ipg)
+                 for nu in (0.0, 0.2, 0.5, 0.8, 1.0)]  # fmt: skip
+        grid.append(hopper("ipg_nu0.2_cv_batch_300k", "ipg_her.py", "--nu", "0.2", "--use-cv",
+                           "--off-policy-states", "batch", *hopper_ipg))  # fmt: skip
+        budget = ("--total-timesteps", "300000")
+        grid += [hopper(f"qprop_{eta}_300k", "qprop_ppo.py", "--eta-mode", eta, *budget)
+                 for eta in ("conservative", "batch-conservative")]  # fmt: skip
+        more_critic = ("--critic-steps", "2048", "--learning-starts", "10000")
+        grid.append(hopper("qprop_batch-conservative_critic2048_300k", "qprop_ppo.py",
+                           *more_critic, *budget))  # fmt: skip
     elif suite == "push":
         seeds = seeds or (1, 2, 3)
         budget = ("--total-timesteps", str(push_steps), "--eval-freq", "25000")
