@@ -137,6 +137,9 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
                     name = f"ipg_her_nu{nu}_{batch}" + ("_cv" if cv else "")
                     grid.append(fetch(name, "ipg_her.py", "--nu", str(nu), *flags,
                                       *(("--use-cv",) if cv else ())))  # fmt: skip
+        # nu = 1 with Q_bar sampled: sigma then learns from the critic, as the likelihood-ratio
+        # term lets it at nu < 1 (with Q_bar from the mean, nothing but the KL penalty moves it)
+        grid.append(fetch("ipg_her_nu1.0_b100_qsample", "ipg_her.py", "--q-bar", "sample"))
         # Hopper, 300k steps: ipg_her with PPO-KL's settings (at nu = 0 it is ppo_kl.py) and a
         # critic trained about once per environment step after a real warm-up; the IPG paper's
         # best variant (nu 0.2, control variate, on-policy states); Q-Prop with per-sample and
