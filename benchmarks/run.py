@@ -161,7 +161,9 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     elif suite == "push":
         seeds = seeds or (1, 2, 3)
         budget = ("--total-timesteps", str(push_steps), "--eval-freq", "25000")
-        grid = [(f"ipg_her_{push_steps // 1000}k", "ipg_her.py", "FetchPush-v4", budget)]
+        name = f"ipg_her_{push_steps // 1000}k"
+        grid = [(name, "ipg_her.py", "FetchPush-v4", budget),
+                (f"{name}_qsample", "ipg_her.py", "FetchPush-v4", (*budget, "--q-bar", "sample"))]  # fmt: skip
     else:  # quick
         seeds = seeds or (1,)
         tiny = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4")
