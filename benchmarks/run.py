@@ -162,8 +162,9 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         seeds = seeds or (1, 2, 3)
         budget = ("--total-timesteps", str(push_steps), "--eval-freq", "25000")
         name = f"ipg_her_{push_steps // 1000}k"
+        sample = (*budget, "--q-bar", "sample")
         grid = [(name, "ipg_her.py", "FetchPush-v4", budget),
-                (f"{name}_qsample", "ipg_her.py", "FetchPush-v4", (*budget, "--q-bar", "sample"))]  # fmt: skip
+                (f"{name}_qsample", "ipg_her.py", "FetchPush-v4", sample)]  # fmt: skip
     else:  # quick
         seeds = seeds or (1,)
         tiny = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4")
