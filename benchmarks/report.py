@@ -32,7 +32,7 @@ THRESHOLDS = {
     "FetchPush-v4": ("eval/success_rate", 0.5),
 }
 BUDGETS = {  # the success table's columns: FetchReach's scale, or FetchPush's
-    "push": (100_000, 250_000, 500_000, 1_000_000, 1_500_000),
+    "push": (100_000, 200_000, 300_000, 500_000, 1_000_000, 1_500_000),
 }
 LABELS = {"ppo_kl": "PPO-KL", "qprop_ppo": "Q-Prop", "ipg": "IPG (no HER)", "ipg_her": "IPG+HER"}
 
