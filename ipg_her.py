@@ -596,7 +596,8 @@ def gradient_diagnostics(
         return torch.cat([(torch.zeros_like(p) if g is None else g).flatten()
                           for p, g in zip(params, grads, strict=True)])  # fmt: skip
 
-    adv, cv = b["advantages"], control_variate(qf, agent, b["obs"], b["actions"])
+    adv = b["advantages"]
+    cv = b["cv"] if "cv" in b else control_variate(qf, agent, b["obs"], b["actions"])
     logp = lambda rows: agent.dist(b["obs"][rows]).log_prob(b["actions"][rows]).sum(-1)  # noqa: E731
     everything = torch.arange(len(adv))
     signal = adv - cv if args.use_cv else adv
@@ -668,6 +669,7 @@ if __name__ == "__main__":
     check_args(args, sys.argv[1:])
     batch_size = args.num_envs * args.num_steps
     minibatch_size = batch_size // args.num_minibatches
+    minibatch_steps = args.update_epochs * len(range(0, batch_size, minibatch_size))  # per update
     num_iterations = args.total_timesteps // batch_size
     run_dir, writer = cli.start_run(args)
 
@@ -796,7 +798,6 @@ if __name__ == "__main__":
                 diagnostics = gradient_diagnostics(agent, qf, b, args, off_states)
 
             # ALGO LOGIC: the IPG update (eq. 10 on eq. 5)
-            minibatch_steps = args.update_epochs * len(range(0, batch_size, minibatch_size))
             states = replay_state_batches(rb, norm, args.off_policy_batch_size, minibatch_steps)
             replay_states = functools.partial(next, states)
             beta, stats = ipg_update(
