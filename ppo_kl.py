@@ -284,22 +284,26 @@ def ppo_kl_update(
     if args.norm_adv:
         adv = (adv - adv.mean()) / (adv.std() + 1e-8)
     pi_old = Normal(b["mean"], b["std"])
+    actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
     epochs_run = 0
     for epoch in range(args.update_epochs):
+        # shuffle once per epoch: the minibatches are then slices (views), not gathers
         perm = torch.randperm(batch_size)
+        shuffled = {key: b[key][perm] for key in ("obs", "actions", "logprobs", "mean", "std")}
+        shuffled |= {"adv": adv[perm], "returns": b["returns"][perm]}
         for start in range(0, batch_size, minibatch_size):
-            mb = perm[start : start + minibatch_size]
-            pi = agent.dist(b["obs"][mb])
-            ratio = (pi.log_prob(b["actions"][mb]).sum(-1) - b["logprobs"][mb]).exp()  # r_t(theta)
-            pi_old_mb = Normal(b["mean"][mb], b["std"][mb])
+            mb = {key: v[start : start + minibatch_size] for key, v in shuffled.items()}
+            pi = agent.dist(mb["obs"])
+            ratio = (pi.log_prob(mb["actions"]).sum(-1) - mb["logprobs"]).exp()  # r_t(theta)
+            pi_old_mb = Normal(mb["mean"], mb["std"])
             kl = kl_divergence(pi_old_mb, pi).sum(-1).mean()  # analytic Gaussian KL
-            pg_loss = -(ratio * adv[mb]).mean() + beta * kl  # eq. 5, negated
-            v_loss = 0.5 * ((agent.get_value(b["obs"][mb]) - b["returns"][mb]) ** 2).mean()
+            pg_loss = -(ratio * mb["adv"]).mean() + beta * kl  # eq. 5, negated
+            v_loss = 0.5 * ((agent.get_value(mb["obs"]) - mb["returns"]) ** 2).mean()
             loss = pg_loss + args.vf_coef * v_loss
             optimizer.zero_grad()
             loss.backward()
-            nn.utils.clip_grad_norm_(agent.actor_parameters(), args.max_grad_norm)  # policy and
-            nn.utils.clip_grad_norm_(agent.critic.parameters(), args.max_grad_norm)  # V apart
+            nn.utils.clip_grad_norm_(actor_params, args.max_grad_norm)  # policy and
+            nn.utils.clip_grad_norm_(critic_params, args.max_grad_norm)  # V apart
             optimizer.step()
         epochs_run = epoch + 1
         if args.kl_early_stop is not None:
