@@ -113,8 +113,10 @@ class Args:
     """evaluate in a background process, so that training goes on meanwhile (0: in this one)"""
     torch_threads: int = 1
     """torch intra-op threads; one is fastest for these small networks (measured)"""
-    diagnostics: bool = True
-    """log the gradient diagnostics ipg/* every update (norms, effective nu, variances)"""
+    diagnostics_every: int = 10
+    """log the gradient diagnostics ipg/* (norms, effective nu, variances) every this many
+    updates (1: every update; 0: never). They draw from a stream of their own: on or off, the
+    training is the same"""
 
     # Algorithm specific arguments
     env_id: str = "FetchReach-v4"
@@ -406,16 +408,21 @@ def make_batch(
 
 
 def sample_replay(
-    rb: ReplayBuffer, norm: InputNormalizer, reward_scale: float, batch_size: int, count: int = 1
+    rb: ReplayBuffer,
+    norm: InputNormalizer,
+    reward_scale: float,
+    batch_size: int,
+    count: int = 1,
+    rng: np.random.Generator | None = None,
 ) -> list[dict]:
     """``count`` (hindsight-relabelled) replay batches as dicts of tensors, inputs normalised and
     rewards scaled by the current statistics.
 
     The batches come from one draw of ``count * batch_size`` transitions, split: the same
     distribution as ``count`` draws (nothing changes the buffer or the statistics in between),
-    at a fraction of the per-call cost.
+    at a fraction of the per-call cost. ``rng``: draw from this generator, not the buffer's.
     """
-    data = rb.sample(batch_size * count)
+    data = rb.sample(batch_size * count, rng)
     goal = data["desired_goal"] if norm.goal_task else None
     tensors = {
         "obs": norm(data["obs"], goal),
@@ -574,7 +581,13 @@ def ipg_update(
 
 # DIAGNOSTICS: what the mixture does (logged as ipg/*; none of it changes the update)
 def gradient_diagnostics(
-    agent: Agent, qf: QNetwork, b: dict, args: Args, off_states: torch.Tensor, chunks: int = 4
+    agent: Agent,
+    qf: QNetwork,
+    b: dict,
+    args: Args,
+    off_states: torch.Tensor,
+    chunks: int = 4,
+    generator: torch.Generator | None = None,
 ) -> dict:
     """Measured on the batch ``b`` before the update, at theta = theta_old:
 
@@ -588,6 +601,9 @@ def gradient_diagnostics(
       Q-Prop's claim: below 1 if the control variate reduces variance;
     * ``corr_adv_cv``: the correlation of A_hat with A_bar (eq. 9) over the batch;
     * ``explained_variance``: 1 - Var(R - V) / Var(R) of the baseline V on the batch.
+
+    Its random draws (chunks, Q_bar's sample) come from ``generator``, so that measuring does not
+    move the training's random stream.
     """
     params = agent.actor_parameters()
 
@@ -607,13 +623,13 @@ def gradient_diagnostics(
     g_on = grad(-(logp(everything) * signal).mean())
     a_off = agent.actor_mean(off_states)
     if args.q_bar == "sample":
-        a_off = a_off + agent.actor_logstd.exp() * torch.randn_like(a_off)
+        a_off = a_off + agent.actor_logstd.exp() * torch.randn(a_off.shape, generator=generator)
     off_scale = 1.0 / sigma if args.normalization == "unbiased" else 1.0  # as the update
     g_off = grad(-qf(off_states, a_off).mean() * off_scale)
     on = (1.0 - args.nu) * g_on.norm().item()
     off = (1.0 if args.use_cv else args.nu) * g_off.norm().item()
     lr_grads, cv_grads = [], []
-    for rows in torch.randperm(len(adv)).chunk(chunks):
+    for rows in torch.randperm(len(adv), generator=generator).chunk(chunks):
         lr_grads.append(grad(-(logp(rows) * adv[rows]).mean()))
         analytic = -qf(b["obs"][rows], agent.actor_mean(b["obs"][rows])).mean()
         cv_grads.append(grad(-(logp(rows) * (adv[rows] - cv[rows])).mean() + analytic))
@@ -678,6 +694,8 @@ if __name__ == "__main__":
     random.seed(streams.global_seed)
     np.random.seed(streams.global_seed)
     torch.manual_seed(streams.torch_seed)
+    diagnostics_rng = np.random.default_rng(streams.diagnostics_seed)  # their own stream
+    diagnostics_generator = torch.Generator().manual_seed(streams.diagnostics_seed)
     torch.backends.cudnn.deterministic = args.torch_deterministic
     torch.set_num_threads(args.torch_threads)
 
@@ -791,11 +809,16 @@ if __name__ == "__main__":
 
             # DIAGNOSTICS: gradient norms and variances before the update (ipg/*)
             diagnostics = {}
-            if args.diagnostics and learning:
+            every = args.diagnostics_every
+            if every > 0 and (iteration - 1) % every == 0 and learning:
                 off_states = b["obs"]
                 if args.off_policy_states == "replay":
-                    off_states = sample_replay(rb, norm, 1.0, args.off_policy_batch_size)[0]["obs"]
-                diagnostics = gradient_diagnostics(agent, qf, b, args, off_states)
+                    off_states = sample_replay(
+                        rb, norm, 1.0, args.off_policy_batch_size, rng=diagnostics_rng
+                    )[0]["obs"]
+                diagnostics = gradient_diagnostics(
+                    agent, qf, b, args, off_states, generator=diagnostics_generator
+                )
 
             # ALGO LOGIC: the IPG update (eq. 10 on eq. 5)
             states = replay_state_batches(rb, norm, args.off_policy_batch_size, minibatch_steps)

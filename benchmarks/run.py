@@ -126,9 +126,10 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         grid = []
         # the on-policy batch: 2 envs x 50 steps or x 500, with the same critic steps and policy
         # minibatch steps per environment step (0.5 and 0.1)
-        batches = {"b100": ("--num-steps", "50"),
+        every = ("--diagnostics-every", "1")  # the study logs ipg/* at every update
+        batches = {"b100": ("--num-steps", "50", *every),
                    "b1000": ("--num-steps", "500", "--critic-steps", "500",
-                             "--num-minibatches", "10")}  # fmt: skip
+                             "--num-minibatches", "10", *every)}  # fmt: skip
         for batch, flags in batches.items():
             for cv in (False, True):
                 for nu in (0.0, 0.2, 0.5, 0.8, 1.0):
@@ -139,7 +140,7 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
                                       *(("--use-cv",) if cv else ())))  # fmt: skip
         # nu = 1 with Q_bar sampled: sigma then learns from the critic, as the likelihood-ratio
         # term lets it at nu < 1 (with Q_bar from the mean, nothing but the KL penalty moves it)
-        grid.append(fetch("ipg_her_nu1.0_b100_qsample", "ipg_her.py", "--q-bar", "sample"))
+        grid.append(fetch("ipg_her_nu1.0_b100_qsample", "ipg_her.py", "--q-bar", "sample", *every))
         # Hopper, 300k steps: ipg_her with PPO-KL's settings (at nu = 0 it is ppo_kl.py) and a
         # critic trained about once per environment step after a real warm-up; the IPG paper's
         # best variant (nu 0.2, control variate, on-policy states); Q-Prop with per-sample and
@@ -147,7 +148,7 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         hopper_ipg = ("--total-timesteps", "300000", "--num-envs", "4", "--num-steps", "512",
                       "--num-minibatches", "32", "--learning-rate", "3e-4", "--gamma", "0.99",
                       "--kl-target", "0.01", "--norm-reward", "--critic-steps", "2048",
-                      "--learning-starts", "10000", "--eval-freq", "20000")  # fmt: skip
+                      "--learning-starts", "10000", "--eval-freq", "20000", *every)  # fmt: skip
         grid += [hopper(f"ipg_nu{nu}_300k", "ipg_her.py", "--nu", str(nu), *hopper_ipg)
                  for nu in (0.0, 0.2, 0.5, 0.8, 1.0)]  # fmt: skip
         grid.append(hopper("ipg_nu0.2_cv_batch_300k", "ipg_her.py", "--nu", "0.2", "--use-cv",

@@ -104,16 +104,17 @@ class ReplayBuffer:
     def num_sampleable(self) -> int:
         return len(self.sampleable())
 
-    def _sample_rows(self, batch_size: int) -> tuple[np.ndarray, np.ndarray]:
+    def _sample_rows(self, batch_size: int, rng: np.random.Generator):
         flat = self.sampleable()
         if len(flat) == 0:
             raise ValueError("no finished episode stored yet")
-        return np.divmod(self.rng.choice(flat, batch_size), self.num_envs)
+        return np.divmod(rng.choice(flat, batch_size), self.num_envs)
 
-    def sample(self, batch_size: int) -> dict[str, np.ndarray]:
+    def sample(self, batch_size: int, rng: np.random.Generator | None = None) -> dict:
         """Transitions of finished episodes, uniformly: ``obs, actions, rewards, next_obs,
-        terminations`` (the names of the stored arrays)."""
-        rows, envs = self._sample_rows(batch_size)
+        terminations`` (the names of the stored arrays). ``rng``: draw from this generator
+        instead of the buffer's own (a measurement that must not move the training's stream)."""
+        rows, envs = self._sample_rows(batch_size, rng or self.rng)
         return {
             "obs": self.obs[rows, envs], "actions": self.actions[rows, envs],
             "rewards": self.rewards[rows, envs].copy(), "next_obs": self.next_obs[rows, envs],
@@ -171,10 +172,11 @@ class HerReplayBuffer(ReplayBuffer):
         self.achieved_goal[p], self.next_achieved_goal[p] = achieved_goal, next_achieved_goal
         self.desired_goal[p] = desired_goal
 
-    def sample(self, batch_size: int) -> dict[str, np.ndarray]:
+    def sample(self, batch_size: int, rng: np.random.Generator | None = None) -> dict:
         """As ``ReplayBuffer.sample``, plus ``achieved_goal, next_achieved_goal, desired_goal``
         (the goal after relabelling) and the boolean ``relabelled``."""
-        rows, envs = self._sample_rows(batch_size)
+        rng = rng or self.rng
+        rows, envs = self._sample_rows(batch_size, rng)
         batch = {
             "obs": self.obs[rows, envs], "actions": self.actions[rows, envs],
             "rewards": self.rewards[rows, envs].copy(), "next_obs": self.next_obs[rows, envs],
@@ -183,18 +185,18 @@ class HerReplayBuffer(ReplayBuffer):
             "next_achieved_goal": self.next_achieved_goal[rows, envs],
             "desired_goal": self.desired_goal[rows, envs].copy(),
         }  # fmt: skip
-        relabel = self.rng.random(batch_size) < self.her_ratio
+        relabel = rng.random(batch_size) < self.her_ratio
         batch["relabelled"] = relabel
         if relabel.any():
             r, e = rows[relabel], envs[relabel]
             start, length = self.ep_start[r, e], self.ep_length[r, e]
             t = (r - start) % self.rows  # step of the transition within its episode
             if self.strategy == "future":
-                j = self.rng.integers(t, length)  # uniform in [t, T-1]
+                j = rng.integers(t, length)  # uniform in [t, T-1]
             elif self.strategy == "final":
                 j = length - 1
             else:  # episode
-                j = self.rng.integers(0, length)
+                j = rng.integers(0, length)
             new_goal = self.next_achieved_goal[(start + j) % self.rows, e]  # g' = ag_{j+1}
             batch["desired_goal"][relabel] = new_goal
             # r' from ag_{t+1}, the achieved goal of the state the transition reached

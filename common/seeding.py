@@ -23,6 +23,7 @@ class Streams:
     replay_seed: int
     action_space_seed: int
     global_seed: int  # python's ``random`` and numpy's legacy global generator
+    diagnostics_seed: int  # measurements that must not move the training's streams
 
     def eval_seeds(self, episodes: int) -> list[int]:
         """Seeds of the next evaluation's episodes: new ones at every call."""
@@ -30,7 +31,8 @@ class Streams:
 
 
 def streams(seed: int, num_envs: int) -> Streams:
-    env, evaluation, torch_, replay, space, glob = np.random.SeedSequence(seed).spawn(6)
+    # spawn keys 0-6: a stream added at the end leaves the earlier ones as they were
+    env, evaluation, torch_, replay, space, glob, diag = np.random.SeedSequence(seed).spawn(7)
     first = lambda ss: int(ss.generate_state(1)[0])
     return Streams(
         env_seeds=[int(s) for s in env.generate_state(num_envs)],
@@ -39,4 +41,5 @@ def streams(seed: int, num_envs: int) -> Streams:
         replay_seed=first(replay),
         action_space_seed=first(space),
         global_seed=first(glob),
+        diagnostics_seed=first(diag),
     )

@@ -297,3 +297,23 @@ def test_gradient_diagnostics_measure_the_two_terms_and_the_control_variates_var
     assert d["corr_adv_cv"] == pytest.approx(1.0)
     assert d["grad_var_cv"] < 0.5 * d["grad_var"]
     assert np.isfinite(d["explained_variance"])
+
+
+def test_diagnostics_do_not_change_the_training(tmp_path):
+    """The ipg/* diagnostics draw from a stream of their own: measured at every update or never,
+    the same seed gives the same networks, bit for bit."""
+    states = []
+    for every in ("1", "0"):
+        log_dir = tmp_path / every
+        result = run_script(
+            "ipg_her.py", log_dir, "--total-timesteps", "300", "--critic-steps", "4",
+            "--update-epochs", "2", "--eval-episodes", "1", "--hidden", "16", "--nu", "0.5",
+            "--q-bar", "sample", "--diagnostics-every", every, "--save-model",
+        )  # fmt: skip
+        assert result.returncode == 0, result.stderr
+        (run_dir,) = run_dirs(log_dir)
+        states.append(torch.load(run_dir / "model.pt", weights_only=False))
+        assert ("ipg/effective_nu" in scalars(run_dir)) == (every == "1")
+    for net in ("agent", "qf"):
+        for key, value in states[0][net].items():
+            assert torch.equal(value, states[1][net][key]), (net, key)
