@@ -23,9 +23,11 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import tyro  # noqa: E402
 
+DIAGNOSTICS = ("ipg/effective_nu", "ipg/grad_var", "ipg/grad_var_cv", "ipg/corr_adv_cv",
+               "qprop/grad_var", "qprop/grad_var_cv", "qprop/corr_adv_cv")  # fmt: skip
 TAGS = ("charts/episodic_return", "charts/episodic_length", "charts/success_rate",
         "charts/policy_entropy", "charts/SPS", "eval/episodic_return",
-        "eval/success_rate", "ipg/effective_nu", "ipg/grad_var", "ipg/grad_var_cv")  # fmt: skip
+        "eval/success_rate", *DIAGNOSTICS)  # fmt: skip
 THRESHOLDS = {
     "Hopper-v5": ("charts/episodic_return", 2000.0),
     "FetchReach-v4": ("eval/success_rate", 0.9),
@@ -107,17 +109,10 @@ def collect(runs_dir: Path, window: int) -> dict:
         run = read_run(max(event_dirs))
         run["final"] = final_performance(run, bool(run.get("charts/success_rate")), window)
         run["reach"] = steps_to_threshold(run, env_id, window)
-        for tag in (
-            "charts/episodic_return",
-            "charts/episodic_length",
-            "charts/success_rate",
-            "charts/policy_entropy",
-            "ipg/effective_nu",
-            "ipg/grad_var",
-            "ipg/grad_var_cv",
-        ):
+        for tag in ("charts/episodic_return", "charts/episodic_length", "charts/success_rate",
+                    "charts/policy_entropy", *DIAGNOSTICS):  # fmt: skip
             if tag in run:
-                run[tag] = downsample(run[tag], 100 if tag.startswith("ipg/") else 300)
+                run[tag] = downsample(run[tag], 100 if tag in DIAGNOSTICS else 300)
         groups[f"{name}__{env_id}"][seed.removeprefix("seed")] = run
     return groups
 
@@ -263,6 +258,47 @@ def success_table(groups: dict, budgets=(2500, 5000, 10000, 30000)) -> str:
                 f"{np.median(values):.2f} [{min(values):.2f}, {max(values):.2f}]" if values else "-"
             )
         rows.append(f"| {env_id} | {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
+    return "\n".join(rows) if len(rows) > 2 else ""
+
+
+def median_over_updates(run: dict, tag: str) -> float | None:
+    return float(np.median([v for _, v in run[tag]])) if run.get(tag) else None
+
+
+def variance_ratio(run: dict, prefix: str) -> float | None:
+    """Median over updates of grad_var_cv / grad_var (the same update's two measurements)."""
+    if not run.get(f"{prefix}/grad_var"):
+        return None
+    without = dict(map(tuple, run[f"{prefix}/grad_var"]))
+    ratios = [v / without[s] for s, v in run[f"{prefix}/grad_var_cv"] if without.get(s, 0) > 0]
+    return float(np.median(ratios)) if ratios else None
+
+
+def median_and_range(values: list) -> str:
+    values = [v for v in values if v is not None and np.isfinite(v)]
+    return f"{np.median(values):.2f} [{min(values):.2f}, {max(values):.2f}]" if values else "-"
+
+
+def diagnostics_table(groups: dict) -> str:
+    """The mixed gradients' diagnostics per variant: effective nu, the gradient-variance ratio
+    with / without the control variate, corr(A_hat, A_bar); each the median over a run's
+    updates, then the median [min, max] over seeds. Empty if no run logged them."""
+    rows = ["| task | algorithm | seeds | effective nu | variance ratio, with CV / without | "
+            "corr(A_hat, A_bar) |", "| --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+    for group in sorted(groups):
+        name, env_id = group.split("__")
+        runs = list(groups[group].values())
+        prefix = next((p for p in ("ipg", "qprop") if any(f"{p}/grad_var" in r for r in runs)), "")
+        if not prefix:
+            continue
+        cells = [
+            median_and_range([median_over_updates(r, "ipg/effective_nu") for r in runs]),
+            median_and_range([variance_ratio(r, prefix) for r in runs]),
+            median_and_range([median_over_updates(r, f"{prefix}/corr_adv_cv") for r in runs]),
+        ]
+        rows.append(
+            f"| {env_id} | {LABELS.get(name, name)} | {len(runs)} | " + " | ".join(cells) + " |"
+        )
     return "\n".join(rows) if len(rows) > 2 else ""
 
 
@@ -469,6 +505,15 @@ def main(args: Args) -> int:
     )
     success = success_table(groups, BUDGETS.get(args.suite, (2500, 5000, 10000, 30000)))
     success_block = f"{success}\n\n" if success else ""
+    diagnostics = diagnostics_table(groups)
+    if diagnostics:
+        success_block += (
+            f"{diagnostics}\n\nDiagnostics (`ipg/*`, `qprop/*`): each the median over a run's "
+            "updates, then the median [min, max] over seeds. *effective nu*: the off-policy "
+            "term's share of the update's gradient norm; *variance ratio*: the trace of the "
+            "policy gradient's covariance over random chunks of the batch, with the control "
+            "variate (eta = 1) over without it (below 1: it reduces variance).\n\n"
+        )
     text = f"""{table(groups, args.window)}
 
 {merged_note}{success_block}How this was measured: every row is the runs of

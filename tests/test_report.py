@@ -140,3 +140,30 @@ def test_rows_merged_from_an_earlier_export_are_marked(tmp_path):
     text = (tmp_path / "results" / "results.md").read_text()
     assert "| Hopper-v5 | algo † | 1 |" in text and "† measured on commit abc" in text
     assert "| FetchReach-v4 | IPG+HER | 1 | 1.00" in text  # the new run, not the merged one
+
+
+def test_diagnostics_table_against_hand_computed_medians():
+    """Per run: the median over updates (the variance ratio update by update); per variant:
+    the median [min, max] over seeds. Runs without diagnostics get no row."""
+    run = lambda var, var_cv, eff, corr: {  # noqa: E731
+        "ipg/grad_var": [[s, v] for s, v in zip((100, 200, 300), var, strict=True)],
+        "ipg/grad_var_cv": [[s, v] for s, v in zip((100, 200, 300), var_cv, strict=True)],
+        "ipg/effective_nu": [[100, eff[0]], [200, eff[1]], [300, eff[2]]],
+        "ipg/corr_adv_cv": [[100, corr[0]], [200, corr[1]], [300, corr[2]]],
+    }
+    groups = {
+        "ipg_her_nu0.5_b100__FetchReach-v4": {
+            # ratios 0.5, 2, 4 (median 2) and 1, 1, 3 (median 1)
+            "1": run((2, 1, 1), (1, 2, 4), (0.1, 0.2, 0.6), (0.0, 0.5, 1.0)),
+            "2": run((1, 1, 1), (1, 1, 3), (0.3, 0.4, 0.5), (0.2, 0.2, 0.2)),
+        },
+        "ppo_kl__FetchReach-v4": {"1": {"charts/episodic_return": [[100, -50.0]]}},
+    }
+    rows = report.diagnostics_table(groups).splitlines()
+    assert len(rows) == 3, "a header, a separator and one row: ppo_kl logged no diagnostics"
+    # effective nu: run medians 0.2 and 0.4; ratio: 2 and 1; corr: 0.5 and 0.2
+    assert rows[2] == (
+        "| FetchReach-v4 | ipg_her_nu0.5_b100 | 2 | 0.30 [0.20, 0.40] | 1.50 [1.00, 2.00] "
+        "| 0.35 [0.20, 0.50] |"
+    )
+    assert report.diagnostics_table({"ppo_kl__Hopper-v5": groups["ppo_kl__FetchReach-v4"]}) == ""
