@@ -289,8 +289,8 @@ def ppo_kl_update(
     for epoch in range(args.update_epochs):
         # shuffle once per epoch: the minibatches are then slices (views), not gathers
         perm = torch.randperm(batch_size)
-        shuffled = {key: b[key][perm] for key in ("obs", "actions", "logprobs", "mean", "std")}
-        shuffled |= {"adv": adv[perm], "returns": b["returns"][perm]}
+        keys = ("obs", "actions", "logprobs", "mean", "std", "returns")
+        shuffled = {key: b[key][perm] for key in keys} | {"adv": adv[perm]}
         for start in range(0, batch_size, minibatch_size):
             mb = {key: v[start : start + minibatch_size] for key, v in shuffled.items()}
             pi = agent.dist(mb["obs"])

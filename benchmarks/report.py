@@ -506,8 +506,9 @@ def main(args: Args) -> int:
     success = success_table(groups, BUDGETS.get(args.suite, (2500, 5000, 10000, 30000)))
     success_block = f"{success}\n\n" if success else ""
     diagnostics = diagnostics_table(groups)
+    diagnostics_block = ""
     if diagnostics:
-        success_block += (
+        diagnostics_block = (
             f"{diagnostics}\n\nDiagnostics (`ipg/*`, `qprop/*`): each the median over a run's "
             "updates, then the median [min, max] over seeds. *effective nu*: the off-policy "
             "term's share of the update's gradient norm; *variance ratio*: the trace of the "
@@ -516,7 +517,7 @@ def main(args: Args) -> int:
         )
     text = f"""{table(groups, args.window)}
 
-{merged_note}{success_block}How this was measured: every row is the runs of
+{merged_note}{success_block}{diagnostics_block}How this was measured: every row is the runs of
 `benchmarks/run.py --suite {args.suite}` that finished, read from their TensorBoard event files
 by `benchmarks/report.py`. *final*: the mean return of the last {args.window} training episodes
 (stochastic policy); on FetchReach the success rate of the last 100 training episodes. Mean ±
