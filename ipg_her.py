@@ -103,6 +103,13 @@ class Args:
     """save a checkpoint (weights, normaliser, args) as model.pt in the run folder at the end"""
     save_freq: int = 0
     """with --save-model, also save every this many environment steps (0: only at the end)"""
+    resume_freq: int = 0
+    """write resume.pt into the run folder every this many env steps and at the end (0: never):
+    everything the run needs to go on after an interruption (see --resume)"""
+    resume: str | None = None
+    """go on with the run in this run folder from its resume.pt: give the command that started
+    it (a larger --total-timesteps extends it). The environments restart with fresh episodes, so
+    the run goes on as a valid run, not as the same numbers an uninterrupted one gives"""
     log_dir: str = "runs"
     """parent folder of the run folders"""
     eval_freq: int = 2500
@@ -205,7 +212,8 @@ def check_args(args: Args, argv: list[str]) -> None:
         cli.fail(f"--nu must be in [0, 1], got {args.nu}")
     if not 0.0 < args.tau <= 1.0:
         cli.fail(f"--tau must be in (0, 1], got {args.tau}")
-    for name in ("critic_steps", "learning_starts", "her_n_sampled_goal", "eval_workers"):
+    names = ("critic_steps", "learning_starts", "her_n_sampled_goal", "eval_workers", "resume_freq")
+    for name in names:
         if getattr(args, name) < 0:
             cli.fail(f"--{name.replace('_', '-')} must be non-negative, got {getattr(args, name)}")
     her_flags = ("--her", "--her-n-sampled-goal", "--her-goal-selection-strategy")
@@ -687,7 +695,15 @@ if __name__ == "__main__":
     minibatch_size = batch_size // args.num_minibatches
     minibatch_steps = args.update_epochs * len(range(0, batch_size, minibatch_size))  # per update
     num_iterations = args.total_timesteps // batch_size
-    run_dir, writer = cli.start_run(args)
+    resumed = None  # the saved state of a run to go on with (--resume)
+    if args.resume:
+        try:
+            resumed = checkpoint.load_resume_state(args.resume, args)
+        except checkpoint.CheckpointError as e:
+            cli.fail(str(e))
+        run_dir, writer = cli.resume_run(args.resume, resumed["global_step"])
+    else:
+        run_dir, writer = cli.start_run(args)
 
     # TRY NOT TO MODIFY: seeding, one independent stream per use (common/seeding.py)
     streams = seeding.streams(args.seed, args.num_envs)
@@ -757,9 +773,26 @@ if __name__ == "__main__":
     evaluator = BackgroundEvaluator(args.eval_workers)
     progress, latest = cli.Progress(args.total_timesteps), ""
     recent_success = []  # is_success of the last 100 training episodes (goal tasks)
-    raw_obs, _ = envs.reset(seed=streams.env_seeds)
+    # everything --resume-freq saves, besides the counters and the global random states
+    parts = dict(agent=agent, optimizer=optimizer, qf=qf, qf_target=qf_target,
+                 q_optimizer=q_optimizer, norm=norm, ret_rms=ret_rms, rb=rb,
+                 eval_rng=streams.eval_rng, diagnostics_rng=diagnostics_rng,
+                 diagnostics_generator=diagnostics_generator)  # fmt: skip
+    first_iteration, last_resume, reset_seeds = 1, 0, streams.env_seeds
+    if resumed:
+        for name, part in parts.items():
+            checkpoint.restore(part, resumed[name])
+        checkpoint.set_rng_states(resumed["rng"])
+        beta, iteration, global_step = resumed["beta"], resumed["iteration"], resumed["global_step"]
+        train_time, last_eval = resumed["train_time"], resumed["last_eval"]
+        last_save, eval_seeds = resumed["last_save"], resumed["eval_seeds"]
+        recent_success = resumed["recent_success"]
+        first_iteration, last_resume = iteration + 1, global_step
+        rb.end_episodes()  # the envs restart with new episodes: the unfinished ones end here
+        reset_seeds = seeding.resume_env_seeds(args.seed, args.num_envs, global_step)
+    raw_obs, _ = envs.reset(seed=reset_seeds)
     try:
-        for iteration in range(1, num_iterations + 1):
+        for iteration in range(first_iteration, num_iterations + 1):
             t0 = time.time()
             if args.anneal_lr:
                 frac = 1.0 - (iteration - 1.0) / num_iterations
@@ -851,6 +884,9 @@ if __name__ == "__main__":
             # TRY NOT TO MODIFY: evaluate the deterministic policy (a snapshot of it, in the
             # background with --eval-workers 1: training goes on meanwhile)
             due = args.eval_freq > 0 and global_step - last_eval >= args.eval_freq
+            resume_due = args.resume_freq > 0 and (
+                global_step - last_resume >= args.resume_freq or iteration == num_iterations
+            )
             if iteration == num_iterations or due:
                 last_eval, eval_seeds = global_step, streams.eval_seeds(args.eval_episodes)
                 video_dir = os.path.join(run_dir, "videos", f"step{global_step}")
@@ -859,7 +895,7 @@ if __name__ == "__main__":
                     video_dir if args.capture_video else None,
                 )  # fmt: skip
             for step, (eval_returns, eval_success) in evaluator.finished(
-                wait=iteration == num_iterations
+                wait=iteration == num_iterations or resume_due  # resume.pt: no evaluation lost
             ):
                 writer.add_scalar("eval/episodic_return", eval_returns.mean(), step)
                 message = f"step={step} eval_return={eval_returns.mean():.1f}"
@@ -870,6 +906,14 @@ if __name__ == "__main__":
             if args.save_model and args.save_freq and global_step - last_save >= args.save_freq:
                 last_save = global_step
                 save()
+            if resume_due:
+                last_resume = global_step
+                checkpoint.save_resume_state(
+                    run_dir, args, **parts, rng=checkpoint.rng_states(), beta=beta,
+                    iteration=iteration, global_step=global_step, train_time=train_time,
+                    last_eval=last_eval, last_save=last_save, recent_success=recent_success,
+                    eval_seeds=eval_seeds,
+                )  # fmt: skip
             if episodes:  # the latest training figure: success on goal tasks, else return
                 latest = f"success {np.mean(recent_success):.2f}" if recent_success else ""
                 latest = latest or f"return {episodes[-1][2]:.1f}"

@@ -74,6 +74,9 @@ def read_run(run_dir: Path) -> dict:
             out[tag] = [[e.step, round(e.value, 5)] for e in events]
             times += [e.wall_time for e in events]
     out["wall_time"] = max(times) - min(times) if times else 0.0
+    sessions = sorted(run_dir.glob("events.out.tfevents.*"))
+    if len(sessions) > 1:  # a resumed run: one event file per session, the pauses not counted
+        out["wall_time"] = sum(read_run(session)["wall_time"] for session in sessions)
     if "hyperparameters/text_summary" in acc.Tags().get("tensors", []):
         text = acc.Tensors("hyperparameters/text_summary")[0].tensor_proto.string_val[0].decode()
         cells = [line.strip("|").split("|") for line in text.splitlines()]
@@ -526,10 +529,10 @@ the deterministic policy{eval_note}. *steps to threshold*: first step where the 
 {args.window} training returns (once there are {args.window}) reaches 2000 (Hopper), or where an
 evaluation reaches 0.9 success (FetchReach; 0.5 on FetchPush); median over all seeds, a seed that
 never reached it counting as never. *SPS*: environment steps per second of training, evaluation
-excluded; *wall time*: first to last logged event. Curves: mean over seeds with a 95% bootstrap
-confidence band, Hopper smoothed over 20 logged episodes, FetchReach returns over 10. The success
-table gives, for goal tasks, the median [min, max] over seeds of the last evaluation at or before
-each budget.
+excluded; *wall time*: first to last logged event (a resumed run: summed over its sessions).
+Curves: mean over seeds with a 95% bootstrap confidence band, Hopper smoothed over 20 logged
+episodes, FetchReach returns over 10. The success table gives, for goal tasks, the median
+[min, max] over seeds of the last evaluation at or before each budget.
 """
     (results / "results.md").write_text(text)
     print(text)

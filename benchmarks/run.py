@@ -43,8 +43,9 @@ class Args:
     dry_run: bool = False
     """print the commands and exit"""
     push_steps: int = 1_500_000
-    """budget of the push suite's runs (part of their names: a run does not resume mid-way, so
-    a budget that one session cannot finish can be run at a smaller one first)"""
+    """budget of the push suite's runs (part of their names). They write a resume point every
+    50,000 steps: a run interrupted (a session's end) goes on from there when run.py is run
+    again, so a budget longer than one session is run in parts"""
 
 
 @dataclass(frozen=True)
@@ -60,9 +61,13 @@ class Run:
         return f"{self.name}__{self.env_id}__seed{self.seed}"
 
     def command(self, run_dir: Path) -> list[str]:
-        return [sys.executable, str(ROOT / self.script), "--env-id", self.env_id,
-                "--seed", str(self.seed), "--exp-name", self.name, "--log-dir", str(run_dir),
-                *self.flags]  # fmt: skip
+        """The run's command; where an interrupted attempt left a resume point (ipg_her.py's
+        ``--resume-freq``), it goes on from the latest one instead of starting again."""
+        command = [sys.executable, str(ROOT / self.script), "--env-id", self.env_id,
+                   "--seed", str(self.seed), "--exp-name", self.name, "--log-dir", str(run_dir),
+                   *self.flags]  # fmt: skip
+        resume_points = sorted(Path(run_dir).glob("*/resume.pt"), key=lambda p: p.stat().st_mtime)
+        return command + (["--resume", str(resume_points[-1].parent)] if resume_points else [])
 
 
 HOPPER_STEPS, FETCH_STEPS = 1_000_000, 30_000
@@ -162,6 +167,7 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     elif suite == "push":
         seeds = seeds or (1, 2, 3)
         budget = ("--total-timesteps", str(push_steps), "--eval-freq", "25000")
+        budget += ("--resume-freq", "50000")  # a run goes on after an interruption
         name = f"ipg_her_{push_steps // 1000}k"
         sample = (*budget, "--q-bar", "sample")
         grid = [(name, "ipg_her.py", "FetchPush-v4", budget),
@@ -214,7 +220,8 @@ def execute(command: list[str], run_dir: str) -> int:
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    with open(run_dir / "stdout.log", "w") as out, open(run_dir / "stderr.log", "w") as err:
+    # appended: an attempt that resumes keeps the output of the one it resumes
+    with open(run_dir / "stdout.log", "a") as out, open(run_dir / "stderr.log", "a") as err:
         code = subprocess.call(command, cwd=ROOT, env=env, stdout=out, stderr=err)
     (run_dir / "exit_code").write_text(f"{code}\n")
     return code

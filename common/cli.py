@@ -173,6 +173,15 @@ def start_run(args) -> tuple[str, SummaryWriter]:
     return run_dir, writer
 
 
+def resume_run(run_dir: str, step: int) -> tuple[str, SummaryWriter]:
+    """Go on logging into an existing run folder after ``step``: TensorBoard drops the events an
+    interrupted run wrote after its last resume point (``purge_step``: from step + 1 on), so no
+    step is logged twice."""
+    print(f"resuming run folder: {run_dir} after step {step:,}", flush=True)
+    signal.signal(signal.SIGTERM, raise_terminated)
+    return run_dir, SummaryWriter(run_dir, purge_step=step + 1)
+
+
 class Progress:
     """A live line (steps done of total, steps/s, ETA, the latest training figure), redrawn in
     place when standard output is a terminal and silent when it is not (CI, the benchmark

@@ -95,6 +95,36 @@ class ReplayBuffer:
             None,
         )
 
+    def end_episodes(self) -> None:
+        """Open the unfinished episodes to sampling as if truncated now (a resumed run restarts
+        its environments, so they never go on); their last next_obs stays the bootstrap state."""
+        for e in np.flatnonzero(self.current_length):
+            length = self.current_length[e]
+            self.ep_length[(self.current_start[e] + np.arange(length)) % self.rows, e] = length
+            self.current_start[e], self.current_length[e] = self.pos, 0
+        self._sampleable = None
+
+    def state_dict(self) -> dict:
+        """The stored rows, the write position and the sampler's state (for resuming a run)."""
+        arrays = {k: v[: self.filled] for k, v in vars(self).items()
+                  if isinstance(v, np.ndarray) and len(v) == self.rows}  # fmt: skip
+        return arrays | {"current_start": self.current_start.copy(),
+                         "current_length": self.current_length.copy(), "pos": self.pos,
+                         "filled": self.filled, "rng": self.rng.bit_generator.state}  # fmt: skip
+
+    def load_state_dict(self, state: dict) -> None:
+        for key, value in state.items():
+            if key == "rng":
+                self.rng.bit_generator.state = value
+            elif isinstance(value, np.ndarray) and getattr(self, key).shape[1:] == value.shape[1:]:
+                getattr(self, key)[: len(value)] = value
+            elif isinstance(value, np.ndarray):
+                raise ValueError(f"replay state {key!r} has shape {value.shape}, this buffer "
+                                 f"{getattr(self, key).shape}")  # fmt: skip
+            else:
+                setattr(self, key, value)
+        self._sampleable = None
+
     def sampleable(self) -> np.ndarray:
         """Flat indices (row * num_envs + env) of the transitions of finished, kept episodes."""
         if self._sampleable is None:

@@ -146,3 +146,24 @@ def test_bad_configuration_is_refused():
         make(strategy="foo")
     with pytest.raises(ValueError, match="longer than the buffer"):
         fill(make(size=2 * 5, num_envs=2), [[8], [8]], 8)
+
+
+def test_state_dict_round_trip_then_end_episodes_opens_the_unfinished_ones():
+    """A resumed run gets the same buffer back (contents, write position, sampler state); its
+    envs restart, so ``end_episodes`` ends the unfinished episodes as truncated there."""
+    buffer = make(size=100, k=4)
+    fill(buffer, [[10], [50]], 35)  # wraps nothing; env 0 has 5 steps unfinished, env 1 35
+    copy = make(size=100, k=4)
+    copy.load_state_dict(buffer.state_dict())
+    for a, b in zip(buffer.sample(64).values(), copy.sample(64).values(), strict=True):
+        np.testing.assert_array_equal(a, b)  # same rows and same sampler stream
+    assert copy.num_sampleable() == 30
+    copy.end_episodes()
+    assert copy.num_sampleable() == 70 and list(copy.current_length) == [0, 0]
+    batch = copy.sample(4000)
+    env1 = batch["obs"][:, 0] == 1
+    relabelled_from_env1 = batch["desired_goal"][env1 & batch["relabelled"]]
+    assert env1.any() and set(relabelled_from_env1[:, 1]) == {0.0}  # its one, now ended, episode
+    assert relabelled_from_env1[:, 2].max() <= 35  # goals only from steps that happened
+    with pytest.raises(ValueError, match="shape"):
+        make(size=100, num_envs=1).load_state_dict(buffer.state_dict())

@@ -12,10 +12,12 @@ from conftest import (
     run_script,
     scalars,
 )
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from toy_envs import counting_envs
 
 import ipg_her
 import ppo_kl
+from benchmarks import report
 from common.her import HerReplayBuffer
 from common.normalizer import InputNormalizer
 
@@ -317,3 +319,41 @@ def test_diagnostics_do_not_change_the_training(tmp_path):
     for net in ("agent", "qf"):
         for key, value in states[0][net].items():
             assert torch.equal(value, states[1][net][key]), (net, key)
+
+
+def test_resume_goes_on_deterministically_and_an_interrupted_stretch_is_not_logged_twice(
+    tmp_path,
+):
+    """A run stopped at a resume point goes on from resume.pt into the same folder; from the same
+    resume.pt the continuation is the same, bit for bit; events an interrupted run logged after
+    its last resume point are dropped, so every step is logged once; other flags are refused."""
+    flags = ("--total-timesteps", "200", "--critic-steps", "4", "--update-epochs", "2",
+             "--eval-freq", "100", "--eval-episodes", "1", "--hidden", "16", "--nu", "0.5",
+             "--resume-freq", "100", "--save-model")  # fmt: skip
+    result = run_script("ipg_her.py", tmp_path, *flags)
+    assert result.returncode == 0, result.stderr
+    (run_dir,) = run_dirs(tmp_path)
+    at_200 = (run_dir / "resume.pt").read_bytes()
+    longer = [*flags[:1], "400", *flags[2:], "--resume", str(run_dir)]
+    models = []
+    for _ in range(2):  # the second time as if the first had died after logging to 400
+        (run_dir / "resume.pt").write_bytes(at_200)
+        result = run_script("ipg_her.py", tmp_path, *longer)
+        assert result.returncode == 0, result.stderr
+        assert run_dirs(tmp_path) == [run_dir]  # the same folder, no new one
+        models.append(torch.load(run_dir / "model.pt", weights_only=False))
+    for net in ("agent", "qf", "qf_target"):
+        for key, value in models[0][net].items():
+            assert torch.equal(value, models[1][net][key]), (net, key)
+    tags = scalars(run_dir)
+    assert [step for step, _ in tags["eval/success_rate"]] == [100, 200, 300, 400]
+    critic_steps = [step for step, _ in tags["losses/critic_loss"]]
+    assert critic_steps == sorted(set(critic_steps)) and critic_steps[-1] == 400
+    resumed = torch.load(run_dir / "resume.pt", weights_only=False)
+    assert resumed["global_step"] == 400 and resumed["rb"]["filled"] == 200  # 2 envs x 200 rows
+    acc = EventAccumulator(str(run_dir))
+    acc.Reload()
+    times = [e.wall_time for tag in acc.Tags()["scalars"] for e in acc.Scalars(tag)]
+    assert report.read_run(run_dir)["wall_time"] < max(times) - min(times) - 1  # pauses left out
+    result = run_script("ipg_her.py", tmp_path, *longer, "--nu", "0.8")
+    assert_clean_error(result, "--nu 0.5", "now 0.8")
