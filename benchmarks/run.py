@@ -158,6 +158,10 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
                  for nu in (0.0, 0.2, 0.5, 0.8, 1.0)]  # fmt: skip
         grid.append(hopper("ipg_nu0.2_cv_batch_300k", "ipg_her.py", "--nu", "0.2", "--use-cv",
                            "--off-policy-states", "batch", *hopper_ipg))  # fmt: skip
+        # the off-policy end with DDPG's slow target (tau 0.005, not FetchReach's 0.05): at 2,048
+        # critic steps per update a fast target follows the critic, and nu = 1's critic diverged
+        grid.append(hopper("ipg_nu1.0_tau0.005_300k", "ipg_her.py", "--nu", "1.0",
+                           "--tau", "0.005", *hopper_ipg))  # fmt: skip
         budget = ("--total-timesteps", "300000")
         grid += [hopper(f"qprop_{eta}_300k", "qprop_ppo.py", "--eta-mode", eta, *budget)
                  for eta in ("conservative", "batch-conservative")]  # fmt: skip
