@@ -80,13 +80,7 @@ def load_resume_state(run_dir: str, args) -> dict:
     if not os.path.isfile(path):
         raise CheckpointError(f"no {RESUME_FILE} in {run_dir} (the run must be started with "
                               "--resume-freq for it to be written)")  # fmt: skip
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as e:
-        raise CheckpointError(f"{path} cannot be read ({e})") from e
-    if state.get("format_version") != FORMAT_VERSION:
-        raise CheckpointError(f"{path} has format {state.get('format_version')!r}, not "
-                              f"{FORMAT_VERSION}")  # fmt: skip
+    state = _read(path)
     differ = [f"--{k.replace('_', '-')} {state['args'].get(k)!r} (now {v!r})"
               for k, v in vars(args).items()
               if k not in RESUMABLE_ARGS and state["args"].get(k) != v]  # fmt: skip
@@ -113,17 +107,25 @@ def load(path: str) -> dict:
         path = os.path.join(path, "model.pt")
     if not os.path.isfile(path):
         raise CheckpointError(f"no such checkpoint: {path}")
+    state = _read(path)
+    if state.get("script") not in SCRIPTS:
+        raise CheckpointError(
+            f"{path} is not a checkpoint of ppo_kl.py, qprop_ppo.py or ipg_her.py"
+        )
+    return state
+
+
+def _read(path: str) -> dict:
+    """A file ``_write`` wrote, in this code's format, or a ``CheckpointError`` saying why not."""
     try:
         state = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as e:
         raise CheckpointError(f"{path} is not a checkpoint of these scripts ({e})") from e
-    if not isinstance(state, dict) or state.get("script") not in SCRIPTS:
-        raise CheckpointError(
-            f"{path} is not a checkpoint of ppo_kl.py, qprop_ppo.py or ipg_her.py"
-        )
+    if not isinstance(state, dict):
+        raise CheckpointError(f"{path} is not a checkpoint of these scripts")
     if state.get("format_version") != FORMAT_VERSION:
         raise CheckpointError(
             f"{path} has checkpoint format {state.get('format_version')!r}; this code reads "
-            f"format {FORMAT_VERSION}: evaluate it with the version of the code that wrote it"
+            f"format {FORMAT_VERSION}: use it with the version of the code that wrote it"
         )
     return state

@@ -85,24 +85,22 @@ class ReplayBuffer:
         self.rewards[p], self.terminations[p] = rewards, terminations
         self.ep_start[p], self.ep_length[p] = self.current_start, 0
         self.current_length += 1
-        for e in np.flatnonzero(np.logical_or(terminations, truncations)):  # open it to sampling
-            length = self.current_length[e]
-            self.ep_length[(self.current_start[e] + np.arange(length)) % self.rows, e] = length
-            self.current_start[e], self.current_length[e] = (p + 1) % self.rows, 0
-        self.pos, self.filled, self._sampleable = (
-            (p + 1) % self.rows,
-            min(self.filled + 1, self.rows),
-            None,
-        )
+        self.pos, self.filled = (p + 1) % self.rows, min(self.filled + 1, self.rows)
+        self._finish_episodes(np.logical_or(terminations, truncations))
 
-    def end_episodes(self) -> None:
-        """Open the unfinished episodes to sampling as if truncated now (a resumed run restarts
-        its environments, so they never go on); their last next_obs stays the bootstrap state."""
-        for e in np.flatnonzero(self.current_length):
+    def _finish_episodes(self, ended: np.ndarray) -> None:
+        """Open the current episodes of the envs where ``ended`` to sampling; the next ones start
+        at the write position."""
+        for e in np.flatnonzero(ended):
             length = self.current_length[e]
             self.ep_length[(self.current_start[e] + np.arange(length)) % self.rows, e] = length
             self.current_start[e], self.current_length[e] = self.pos, 0
         self._sampleable = None
+
+    def end_episodes(self) -> None:
+        """Open the unfinished episodes to sampling as if truncated now (a resumed run restarts
+        its environments, so they never go on); their last next_obs stays the bootstrap state."""
+        self._finish_episodes(self.current_length > 0)
 
     def state_dict(self) -> dict:
         """The stored rows, the write position and the sampler's state (for resuming a run)."""
