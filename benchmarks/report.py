@@ -59,6 +59,9 @@ class Args:
     """what the merged groups were measured on (shown in the table's note)"""
     readme: str = ""
     """also write table and figures into this README, between <!-- results:{suite}:start/end -->"""
+    include_unfinished: bool = False
+    """also read runs that have not finished (a long run between two of its sessions), marked in
+    the table with the step each reached"""
 
 
 def read_run(run_dir: Path) -> dict:
@@ -94,22 +97,28 @@ def downsample(points: list, n: int = 300) -> list:
     ]
 
 
-def collect(runs_dir: Path, window: int) -> dict:
+def collect(runs_dir: Path, window: int, include_unfinished: bool = False) -> dict:
     """{group "name__env_id": {seed: run}} from the folders run.py wrote. Each run keeps its
     summary (``final``, ``reach``) computed from the full event data, and curves downsampled for
-    plotting: the export stays small and still reproduces the table exactly."""
+    plotting: the export stays small and still reproduces the table exactly. Runs that did not
+    finish are left out, or with ``include_unfinished`` kept with ``unfinished_at``, the last
+    step they logged."""
     groups = defaultdict(dict)
     for folder in sorted(runs_dir.iterdir()):
-        if (
-            not (folder / "exit_code").exists()
-            or folder.joinpath("exit_code").read_text().strip() != "0"
-        ):
+        code = folder / "exit_code"
+        done = code.exists() and code.read_text().strip() == "0"
+        if not (done or include_unfinished):
             continue
         name, env_id, seed = folder.name.split("__")
         event_dirs = [p for p in folder.iterdir() if p.is_dir()]
         if not event_dirs:
             continue
         run = read_run(max(event_dirs))
+        if not done:
+            steps = [points[-1][0] for tag, points in run.items() if tag in TAGS and points]
+            if not steps:
+                continue
+            run["unfinished_at"] = max(steps)
         run["final"] = final_performance(run, bool(run.get("charts/success_rate")), window)
         run["reach"] = steps_to_threshold(run, env_id, window)
         for tag in ("charts/episodic_return", "charts/episodic_length", "charts/success_rate",
@@ -230,6 +239,7 @@ def table(groups: dict, window: int) -> str:
         wall = np.mean([r["wall_time"] for r in runs])
         f = ".2f" if goal else ".0f"
         mark = " †" if any("measured_on" in r for r in runs) else ""
+        mark += " ‡" if any("unfinished_at" in r for r in runs) else ""
         rows.append(f"| {env_id} | {LABELS.get(name, name)}{mark} | {len(runs)} "
                     f"| {final.mean():{f}} ± {final.std(ddof=1):{f}} | {np.median(final):{f}} "
                     f"| {iqm(final):{f}} | {final_eval.mean():{f}} | {reach_text} | {sps:.0f} "
@@ -239,7 +249,9 @@ def table(groups: dict, window: int) -> str:
 
 def success_table(groups: dict, budgets=(2500, 5000, 10000, 30000)) -> str:
     """Goal tasks: the evaluation success rate at a few budgets, median and range over seeds;
-    only the budgets the runs reached (the last evaluation's step if they reached none)."""
+    only the budgets the runs reached (the last evaluation's step if they reached none). A cell
+    holds the runs that were evaluated at or after its budget, so a run still in progress never
+    shows an earlier evaluation under a later budget (its count is given when not all)."""
     last = max((r["eval/success_rate"][-1][0] for g in groups.values() for r in g.values()
                 if r.get("eval/success_rate")), default=0)  # fmt: skip
     checkpoints = [c for c in budgets if c <= last] or ([last] if last else [])
@@ -255,10 +267,13 @@ def success_table(groups: dict, budgets=(2500, 5000, 10000, 30000)) -> str:
             continue
         cells = []
         for c in checkpoints:
-            values = [([v for s, v in run if s <= c] or [np.nan])[-1] for run in runs]
+            values = [[v for s, v in run if s <= c][-1] for run in runs if run[-1][0] >= c]
             values = [v for v in values if np.isfinite(v)]
+            seeds = f" ({len(values)} of {len(runs)} seeds)" if len(values) < len(runs) else ""
             cells.append(
-                f"{np.median(values):.2f} [{min(values):.2f}, {max(values):.2f}]" if values else "-"
+                f"{np.median(values):.2f} [{min(values):.2f}, {max(values):.2f}]{seeds}"
+                if values
+                else "-"
             )
         rows.append(f"| {env_id} | {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
     return "\n".join(rows) if len(rows) > 2 else ""
@@ -466,7 +481,7 @@ def main(args: Args) -> int:
                 file=sys.stderr,
             )
             return 2
-        groups = collect(runs_dir, args.window)
+        groups = collect(runs_dir, args.window, args.include_unfinished)
         if args.merge_export:  # rows the runs lack, from an earlier export, kept visibly apart
             earlier = json.loads(Path(args.merge_export).read_text())
             for group, runs in earlier.items():
@@ -506,6 +521,15 @@ def main(args: Args) -> int:
     merged_note = (
         f"† measured on {', '.join(earlier)}, not re-run on this code.\n\n" if earlier else ""
     )
+    unfinished = [f"{g.split('__')[0]} seed {seed} at {r['unfinished_at']:,}"
+                  for g, runs in sorted(groups.items()) for seed, r in sorted(runs.items())
+                  if "unfinished_at" in r]  # fmt: skip
+    if unfinished:
+        merged_note += (
+            "‡ includes runs still in progress (resumable, stopped at a session's end), read "
+            f"at the last step each logged: {'; '.join(unfinished)}. Their *final* columns are "
+            "the figures at that step, not at the budget.\n\n"
+        )
     success = success_table(groups, BUDGETS.get(args.suite, (2500, 5000, 10000, 30000)))
     success_block = f"{success}\n\n" if success else ""
     diagnostics = diagnostics_table(groups)

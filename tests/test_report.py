@@ -142,6 +142,32 @@ def test_rows_merged_from_an_earlier_export_are_marked(tmp_path):
     assert "| FetchReach-v4 | IPG+HER | 1 | 1.00" in text  # the new run, not the merged one
 
 
+def test_unfinished_runs_are_left_out_or_marked_with_the_step_they_reached(tmp_path, monkeypatch):
+    """A run between two sessions (no exit code 0) is not a result: left out by default; with
+    --include-unfinished it is marked ‡ with its last step, and a success budget it has not
+    reached holds only the seeds that reached it, never its earlier evaluation."""
+    runs = tmp_path / "runs" / "push"
+    write_run(runs, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 0.5, 1.0, 1.0])  # to 2,000
+    write_run(runs, "ipg_her", "FetchReach-v4", 2, [-50] * 3, [0.0, 0.2])  # stopped at 1,000
+    (runs / "ipg_her__FetchReach-v4__seed2" / "exit_code").unlink()
+
+    def results(**flags) -> str:
+        args = report.Args(suite="push", runs_dir=str(tmp_path / "runs"),
+                           results_dir=str(tmp_path / "results"), **flags)  # fmt: skip
+        assert report.main(args) == 0
+        return (tmp_path / "results" / "results.md").read_text()
+
+    assert "| IPG+HER | 1 |" in results() and "‡" not in results()
+    text = results(include_unfinished=True)
+    assert "| IPG+HER ‡ | 2 |" in text and "ipg_her seed 2 at 1,000" in text
+    monkeypatch.setitem(report.BUDGETS, "push", (500, 1000, 1500))
+    row = next(line for line in results(include_unfinished=True).splitlines()
+               if line.startswith("| FetchReach-v4 | IPG+HER | 0"))  # fmt: skip
+    # at 500 and 1,000 both seeds (0.0 and 0.0; 0.5 and 0.2), at 1,500 seed 1 alone (1.0)
+    assert row.split(" | ")[2:] == ["0.00 [0.00, 0.00]", "0.35 [0.20, 0.50]",
+                                    "1.00 [1.00, 1.00] (1 of 2 seeds) |"]  # fmt: skip
+
+
 def test_diagnostics_table_against_hand_computed_medians():
     """Per run: the median over updates (the variance ratio update by update); per variant:
     the median [min, max] over seeds. Runs without diagnostics get no row."""
