@@ -174,8 +174,12 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         budget += ("--resume-freq", "50000")  # a run goes on after an interruption
         name = f"ipg_her_{push_steps // 1000}k"
         sample = (*budget, "--q-bar", "sample")
+        # nu 0.8: the likelihood-ratio term gives sigma a signal, which nu = 1 lacks (its entropy
+        # climbs under the KL penalty alone); the best middle nu on FetchReach
+        mixed = (*budget, "--nu", "0.8")
         grid = [(name, "ipg_her.py", "FetchPush-v4", budget),
-                (f"{name}_qsample", "ipg_her.py", "FetchPush-v4", sample)]  # fmt: skip
+                (f"{name}_qsample", "ipg_her.py", "FetchPush-v4", sample),
+                (f"{name}_nu0.8", "ipg_her.py", "FetchPush-v4", mixed)]  # fmt: skip
     else:  # quick
         seeds = seeds or (1,)
         tiny = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4")
