@@ -12,12 +12,14 @@ with Q_bar_w(s) = E_{a ~ pi}[Q_w(s, a)], estimated by Q_w(s, mu_theta(s)) (``--q
 default: the deterministic policy gradient of eq. 7) or by one reparameterised sample
 Q_w(s, mu_theta(s) + sigma_theta eps) (``--q-bar sample``, which also gives sigma a gradient).
 The choice matters at nu near 1, where the likelihood-ratio term, the other signal for sigma,
-has no weight: with the mean, sigma follows only the KL penalty, which lets it grow a little
-whenever the mean moves (FetchReach's entropy rises from 5.7 to about 7 over 30,000 steps); with
-the sample it falls, but the noisy gradient slows learning (2,000 steps to 0.9 instead of 1,500
-in 5 of 5 seeds, measured). Evaluation uses the mean, which is what matters here. nu = 0 is PPO-KL,
-nu = 1 is DDPG with a stochastic exploring policy. Here the on-policy part is PPO-KL's surrogate
-(eq. 5), so one minibatch loss is
+has no weight: with the mean, sigma follows only the KL penalty, whose gradient in log sigma,
+1 - (sigma_old^2 + delta^2) / sigma^2, widens sigma whenever the mean moves by delta, so sigma
+only grows (FetchReach's entropy rises from 5.7 to about 7 over 30,000 steps; FetchPush's to 13
+over 300,000, sigma about 6 on actions bounded to [-1, 1], so that the behaviour policy acts
+almost at random). With the sample it falls, but the noisy gradient slows learning (FetchReach:
+2,000 steps to 0.9 instead of 1,500 in 5 of 5 seeds, measured). Evaluation uses the mean.
+nu = 0 is PPO-KL, nu = 1 is DDPG with a stochastic exploring policy. Here the on-policy part
+is PPO-KL's surrogate (eq. 5), so one minibatch loss is
 
     L = (1 - nu) * -E[r_t(theta) A_t] + nu * -E_{s ~ beta}[Q_w(s, mu_theta(s))]
         + beta_KL * KL[pi_old || pi_theta]

@@ -78,6 +78,33 @@ def test_off_policy_term_moves_the_mean_up_the_critic():
     assert after > before + 1e-3
 
 
+@pytest.mark.parametrize("q_bar", ["mean", "sample"])
+def test_at_nu_one_sigma_follows_only_the_kl_penalty_unless_q_bar_is_sampled(q_bar):
+    """nu = 1 with Q_bar from the mean: nothing in eq. 10 reaches sigma but the KL penalty, whose
+    gradient in log sigma, 1 - (sigma_old^2 + delta^2) / sigma^2 per dimension, is negative once
+    the mean has moved by delta: each update can only widen sigma (Adam turns that small, steady
+    gradient into steps of about the learning rate). This is the entropy climb of the FetchPush
+    runs. With Q_bar sampled, the critic's gradient reaches sigma as well: on a critic concave in
+    the action, E[Q(s, mu + sigma eps)] falls with sigma, and sigma narrows."""
+
+    class Bowl(torch.nn.Module):  # Q(s, a) = -|a - 0.5|^2: the best action is 0.5
+        def forward(self, s, a):
+            return -((a - 0.5) ** 2).sum(-1)
+
+    torch.manual_seed(0)
+    agent, qf = ipg_her.Agent(3, 2, 32), Bowl()
+    states = torch.randn(256, 3)
+    args = ipg_her.Args(nu=1.0, q_bar=q_bar, num_minibatches=2, update_epochs=5)
+    optimizer = torch.optim.Adam(agent.parameters(), lr=1e-3)
+    log_std = [agent.actor_logstd.detach().clone()]
+    for seed in range(5):  # five updates, each from the policy the last one left
+        b = random_batch(64, 3, 2, agent, seed)
+        ipg_her.ipg_update(agent, optimizer, b, 1.0, args, qf, lambda: states)
+        log_std.append(agent.actor_logstd.detach().clone())
+    steps = torch.diff(torch.cat(log_std), dim=0)
+    assert (steps > 0).all() if q_bar == "mean" else (steps < 0).all()
+
+
 @pytest.mark.parametrize(
     "env_id, flags",
     [
