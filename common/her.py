@@ -105,13 +105,16 @@ class ReplayBuffer:
     def state_dict(self) -> dict:
         """The stored rows, the write position and the sampler's state (for resuming a run)."""
         arrays = {k: v[: self.filled] for k, v in vars(self).items()
-                  if isinstance(v, np.ndarray) and len(v) == self.rows}  # fmt: skip
+                  if isinstance(v, np.ndarray) and v.shape[:2] == (self.rows, self.num_envs)
+                  and not k.startswith("_")}  # fmt: skip (the stored rows, not a cache)
         return arrays | {"current_start": self.current_start.copy(),
                          "current_length": self.current_length.copy(), "pos": self.pos,
                          "filled": self.filled, "rng": self.rng.bit_generator.state}  # fmt: skip
 
     def load_state_dict(self, state: dict) -> None:
         for key, value in state.items():
+            if key.startswith("_"):  # a cache that files of earlier code could hold: rebuilt
+                continue
             if key == "rng":
                 self.rng.bit_generator.state = value
             elif isinstance(value, np.ndarray) and getattr(self, key).shape[1:] == value.shape[1:]:

@@ -167,3 +167,19 @@ def test_state_dict_round_trip_then_end_episodes_opens_the_unfinished_ones():
     assert relabelled_from_env1[:, 2].max() <= 35  # goals only from steps that happened
     with pytest.raises(ValueError, match="shape"):
         make(size=100, num_envs=1).load_state_dict(buffer.state_dict())
+
+
+def test_state_dict_holds_the_stored_rows_only_even_when_the_sampler_cache_has_their_length():
+    """The cache of sampleable indices is not state: a run saved when exactly ``rows``
+    transitions were sampleable (FetchPush's buffer at step 500,000) must load again, and so must
+    a file that earlier code wrote with the cache in it."""
+    buffer = make(size=20, num_envs=2)  # 10 rows of 2 envs
+    fill(buffer, [[5], [5]], 5)  # one finished episode per env: 10 = rows sampleable
+    assert buffer.num_sampleable() == buffer.rows  # the cache is filled, of length rows
+    state = buffer.state_dict()
+    assert not any(key.startswith("_") for key in state)
+    expected = buffer.sample(32)["obs"]  # the buffer's next draw, from the saved sampler state
+    for saved in (state, state | {"_sampleable": buffer.sampleable()}):
+        copy = make(size=20, num_envs=2)
+        copy.load_state_dict(saved)
+        np.testing.assert_array_equal(copy.sample(32)["obs"], expected)
