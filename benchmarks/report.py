@@ -101,13 +101,17 @@ def collect(runs_dir: Path, window: int, include_unfinished: bool = False) -> di
     """{group "name__env_id": {seed: run}} from the folders run.py wrote. Each run keeps its
     summary (``final``, ``reach``) computed from the full event data, and curves downsampled for
     plotting: the export stays small and still reproduces the table exactly. Runs that did not
-    finish are left out, or with ``include_unfinished`` kept with ``unfinished_at``, the last
-    step they logged."""
+    finish are left out, or with ``include_unfinished``, those that were stopped (no exit code,
+    or a signal's) with a resume point to go on from are kept with ``unfinished_at``, the last
+    step they logged; a run that failed is never read."""
     groups = defaultdict(dict)
     for folder in sorted(runs_dir.iterdir()):
         code = folder / "exit_code"
-        done = code.exists() and code.read_text().strip() == "0"
-        if not (done or include_unfinished):
+        code = int(code.read_text()) if code.exists() else None
+        stopped = code is None or code < 0 or code in (130, 137, 143)  # killed, not failed
+        resumable = stopped and any(folder.glob("*/resume.pt"))
+        done = code == 0
+        if not (done or (include_unfinished and resumable)):
             continue
         name, env_id, seed = folder.name.split("__")
         event_dirs = [p for p in folder.iterdir() if p.is_dir()]
@@ -234,7 +238,9 @@ def table(groups: dict, window: int) -> str:
         reach = np.array([r["reach"] for r in runs])
         median, k = median_steps(reach), int(np.isfinite(reach).sum())
         reach_text = f"{median:,.0f}" if np.isfinite(median) else "not reached"
-        reach_text += f" ({k}/{len(runs)} seeds)"
+        running = sum(1 for r in runs if "unfinished_at" in r and not np.isfinite(r["reach"]))
+        reach_text += f" ({k}/{len(runs)} seeds" + (f"; {running} not yet, still running)"
+                                                     if running else ")")  # fmt: skip
         sps = np.mean([r["charts/SPS"][-1][1] for r in runs if r.get("charts/SPS")])
         wall = np.mean([r["wall_time"] for r in runs])
         f = ".2f" if goal else ".0f"
@@ -250,8 +256,8 @@ def table(groups: dict, window: int) -> str:
 def success_table(groups: dict, budgets=(2500, 5000, 10000, 30000)) -> str:
     """Goal tasks: the evaluation success rate at a few budgets, median and range over seeds;
     only the budgets the runs reached (the last evaluation's step if they reached none). A cell
-    holds the runs that were evaluated at or after its budget, so a run still in progress never
-    shows an earlier evaluation under a later budget (its count is given when not all)."""
+    leaves out a run still in progress that has not reached its budget (it would show an earlier
+    evaluation there); the count of seeds is given when not all."""
     last = max((r["eval/success_rate"][-1][0] for g in groups.values() for r in g.values()
                 if r.get("eval/success_rate")), default=0)  # fmt: skip
     checkpoints = [c for c in budgets if c <= last] or ([last] if last else [])
@@ -260,14 +266,16 @@ def success_table(groups: dict, budgets=(2500, 5000, 10000, 30000)) -> str:
             "| --- | --- | " + " | ".join("---" for _ in checkpoints) + " |"]  # fmt: skip
     for group in sorted(groups):
         name, env_id = group.split("__")
-        runs = [
-            r["eval/success_rate"] for r in groups[group].values() if r.get("eval/success_rate")
-        ]
+        runs = [r for r in groups[group].values() if r.get("eval/success_rate")]
         if not runs:
             continue
         cells = []
         for c in checkpoints:
-            values = [[v for s, v in run if s <= c][-1] for run in runs if run[-1][0] >= c]
+            values = [
+                ([v for s, v in r["eval/success_rate"] if s <= c] or [np.nan])[-1]
+                for r in runs  # a run in progress: only budgets it was evaluated at
+                if "unfinished_at" not in r or r["eval/success_rate"][-1][0] >= c
+            ]
             values = [v for v in values if np.isfinite(v)]
             seeds = f" ({len(values)} of {len(runs)} seeds)" if len(values) < len(runs) else ""
             cells.append(
@@ -524,6 +532,7 @@ def main(args: Args) -> int:
     unfinished = [f"{g.split('__')[0]} seed {seed} at {r['unfinished_at']:,}"
                   for g, runs in sorted(groups.items()) for seed, r in sorted(runs.items())
                   if "unfinished_at" in r]  # fmt: skip
+    finished = "finished (‡: or were stopped mid-way)" if unfinished else "finished"
     if unfinished:
         merged_note += (
             "‡ includes runs still in progress (resumable, stopped at a session's end), read "
@@ -545,7 +554,7 @@ def main(args: Args) -> int:
     text = f"""{table(groups, args.window)}
 
 {merged_note}{success_block}{diagnostics_block}How this was measured: every row is the runs of
-`benchmarks/run.py --suite {args.suite}` that finished, read from their TensorBoard event files
+`benchmarks/run.py --suite {args.suite}` that {finished}, read from their TensorBoard event files
 by `benchmarks/report.py`. *final*: the mean return of the last {args.window} training episodes
 (stochastic policy); on FetchReach the success rate of the last 100 training episodes. Mean ±
 sample std, median and interquartile mean (IQM) over seeds. *final eval*: the last evaluation of

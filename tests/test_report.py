@@ -143,13 +143,18 @@ def test_rows_merged_from_an_earlier_export_are_marked(tmp_path):
 
 
 def test_unfinished_runs_are_left_out_or_marked_with_the_step_they_reached(tmp_path, monkeypatch):
-    """A run between two sessions (no exit code 0) is not a result: left out by default; with
-    --include-unfinished it is marked ‡ with its last step, and a success budget it has not
-    reached holds only the seeds that reached it, never its earlier evaluation."""
+    """A run between two sessions (no exit code, a resume point) is not a result: left out by
+    default; with --include-unfinished it is marked ‡ with its last step, a success budget it
+    has not reached holds only the seeds that reached it, never its earlier evaluation, and a
+    threshold it has not reached yet is not called missed. A failed run is never read."""
     runs = tmp_path / "runs" / "push"
     write_run(runs, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 0.5, 1.0, 1.0])  # to 2,000
     write_run(runs, "ipg_her", "FetchReach-v4", 2, [-50] * 3, [0.0, 0.2])  # stopped at 1,000
-    (runs / "ipg_her__FetchReach-v4__seed2" / "exit_code").unlink()
+    write_run(runs, "ipg_her", "FetchReach-v4", 3, [-50] * 3, [0.0, 0.2])  # failed at 1,000
+    for seed, code in ((2, None), (3, "1")):  # both left a resume point
+        folder = runs / f"ipg_her__FetchReach-v4__seed{seed}"
+        next(f for f in folder.iterdir() if f.is_dir()).joinpath("resume.pt").touch()
+        (folder / "exit_code").unlink() if code is None else (folder / "exit_code").write_text(code)
 
     def results(**flags) -> str:
         args = report.Args(suite="push", runs_dir=str(tmp_path / "runs"),
@@ -159,7 +164,8 @@ def test_unfinished_runs_are_left_out_or_marked_with_the_step_they_reached(tmp_p
 
     assert "| IPG+HER | 1 |" in results() and "‡" not in results()
     text = results(include_unfinished=True)
-    assert "| IPG+HER ‡ | 2 |" in text and "ipg_her seed 2 at 1,000" in text
+    assert "| IPG+HER ‡ | 2 |" in text and "ipg_her seed 2 at 1,000" in text  # not seed 3
+    assert "(1/2 seeds; 1 not yet, still running)" in text  # seed 1 reached 0.9, seed 2 not yet
     monkeypatch.setitem(report.BUDGETS, "push", (500, 1000, 1500))
     row = next(line for line in results(include_unfinished=True).splitlines()
                if line.startswith("| FetchReach-v4 | IPG+HER | 0"))  # fmt: skip
