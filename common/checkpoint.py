@@ -11,6 +11,7 @@ A run started with ``--resume-freq`` also writes ``resume.pt`` into its run fold
 needs to go on (optimisers, replay buffer, random states, counters), read by ``--resume``.
 """
 
+import dataclasses
 import os
 import random
 
@@ -81,9 +82,13 @@ def load_resume_state(run_dir: str, args) -> dict:
         raise CheckpointError(f"no {RESUME_FILE} in {run_dir} (the run must be started with "
                               "--resume-freq for it to be written)")  # fmt: skip
     state = _read(path)
-    differ = [f"--{k.replace('_', '-')} {state['args'].get(k)!r} (now {v!r})"
+    # a flag added to the code since the run started: the run had its default
+    saved = {f.name: f.default for f in dataclasses.fields(args)} | state["args"]
+    differ = [f"--{k.replace('_', '-')} {saved.get(k)!r} (now {v!r})"
               for k, v in vars(args).items()
-              if k not in RESUMABLE_ARGS and state["args"].get(k) != v]  # fmt: skip
+              if k not in RESUMABLE_ARGS and saved.get(k) != v]  # fmt: skip
+    if getattr(args, "anneal_lr", False) and args.total_timesteps != saved["total_timesteps"]:
+        differ.append("--total-timesteps with --anneal-lr (the schedule would jump)")
     if differ:
         raise CheckpointError(f"{run_dir} was run with other arguments: {', '.join(differ)}; "
                               "resume it with the command that started it")  # fmt: skip

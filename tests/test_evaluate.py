@@ -10,6 +10,7 @@ import pytest
 import torch
 from conftest import ROOT, run_dirs, run_script, scalars
 
+import ipg_her
 from common import checkpoint, evaluate
 
 TINY_PPO = ["--num-envs", "2", "--num-steps", "64", "--total-timesteps", "128",
@@ -143,3 +144,22 @@ def test_background_evaluator_returns_results_in_submission_order(workers):
     assert [step for step, _ in done] == [100, 200, 300]
     for (_, result), expected in zip(done, ([100, 200], [400, 600], [900, 1200]), strict=True):
         np.testing.assert_array_equal(result, expected)
+
+
+def test_resume_accepts_flags_added_since_at_their_defaults_and_refuses_a_jumping_schedule(
+    tmp_path,
+):
+    """A resume point written before a flag existed: the run had the flag's default, so the
+    same command resumes it, and only a non-default value is refused. A longer budget is refused
+    under --anneal-lr, whose schedule it would move."""
+    checkpoint.save_resume_state(str(tmp_path), ipg_her.Args(), global_step=100)
+    state = torch.load(tmp_path / "resume.pt", weights_only=False)
+    del state["args"]["q_bar"]  # as written by code before --q-bar
+    torch.save(state, tmp_path / "resume.pt")
+    assert checkpoint.load_resume_state(str(tmp_path), ipg_her.Args())["global_step"] == 100
+    with pytest.raises(checkpoint.CheckpointError, match="--q-bar 'mean' \\(now 'sample'\\)"):
+        checkpoint.load_resume_state(str(tmp_path), ipg_her.Args(q_bar="sample"))
+    checkpoint.save_resume_state(str(tmp_path), ipg_her.Args(anneal_lr=True))
+    checkpoint.load_resume_state(str(tmp_path), ipg_her.Args(anneal_lr=True, resume_freq=9))
+    with pytest.raises(checkpoint.CheckpointError, match="--anneal-lr"):
+        checkpoint.load_resume_state(str(tmp_path), ipg_her.Args(anneal_lr=True, total_timesteps=9))
