@@ -10,8 +10,11 @@ From Python (a notebook), on raw environment observations (a Dict on goal tasks)
 
 The policy is rebuilt from the checkpoint alone: its ``script`` and ``args`` say which networks,
 task and sizes, and the normaliser's statistics are frozen as they were saved. Without
-``--seed``, the episodes are the ones the run's last evaluation played, so the mean return
-printed here is the run's own last ``eval/episodic_return``.
+``--seed``, the episodes are the ones the run's last evaluation played before the save, so for
+the model.pt a finished run saves at its end, right after that evaluation, the mean return
+printed here is the run's own last ``eval/episodic_return``. A checkpoint saved mid-way
+(``--save-freq``, or at an interruption) holds weights newer than the evaluated ones: the same
+episodes, not the same numbers.
 """
 
 import collections
