@@ -562,7 +562,8 @@ the deterministic policy{eval_note}. *steps to threshold*: first step where the 
 {args.window} training returns (once there are {args.window}) reaches 2000 (Hopper), or where an
 evaluation reaches 0.9 success (FetchReach; 0.5 on FetchPush); median over all seeds, a seed that
 never reached it counting as never. *SPS*: environment steps per second of training, evaluation
-excluded; *wall time*: first to last logged event (a resumed run: summed over its sessions).
+excluded; *wall time*: first to last logged event (a resumed run: summed over its sessions,
+with the work an interruption threw away).
 Curves: mean over seeds with a 95% bootstrap confidence band, Hopper smoothed over 20 logged
 episodes, FetchReach returns over 10. The success table gives, for goal tasks, the median
 [min, max] over seeds of the last evaluation at or before each budget.
