@@ -162,6 +162,9 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         # critic steps per update a fast target follows the critic, and nu = 1's critic diverged
         grid.append(hopper("ipg_nu1.0_tau0.005_300k", "ipg_her.py", "--nu", "1.0",
                            "--tau", "0.005", *hopper_ipg))  # fmt: skip
+        # and there sigma drifted up (entropy 4.3 to 7.0): with Q_bar sampled sigma has a gradient
+        grid.append(hopper("ipg_nu1.0_tau0.005_qsample_300k", "ipg_her.py", "--nu", "1.0",
+                           "--tau", "0.005", "--q-bar", "sample", *hopper_ipg))  # fmt: skip
         budget = ("--total-timesteps", "300000")
         grid += [hopper(f"qprop_{eta}_300k", "qprop_ppo.py", "--eta-mode", eta, *budget)
                  for eta in ("conservative", "batch-conservative")]  # fmt: skip
