@@ -83,7 +83,8 @@ def read_run(run_dir: Path) -> dict:
     if "hyperparameters/text_summary" in acc.Tags().get("tensors", []):
         text = acc.Tensors("hyperparameters/text_summary")[0].tensor_proto.string_val[0].decode()
         cells = [line.strip("|").split("|") for line in text.splitlines()]
-        out["args"] = {c[0]: c[1] for c in cells if len(c) == 2 and c[0] in ("eval_episodes",)}
+        keep = ("eval_episodes", "total_timesteps")
+        out["args"] = {c[0]: c[1] for c in cells if len(c) == 2 and c[0] in keep}
     return out
 
 
@@ -256,8 +257,9 @@ def table(groups: dict, window: int) -> str:
 def success_table(groups: dict, budgets=(2500, 5000, 10000, 30000)) -> str:
     """Goal tasks: the evaluation success rate at a few budgets, median and range over seeds;
     only the budgets the runs reached (the last evaluation's step if they reached none). A cell
-    leaves out a run still in progress that has not reached its budget (it would show an earlier
-    evaluation there); the count of seeds is given when not all."""
+    leaves out a run whose own budget is smaller, and a run still in progress that has not
+    reached the column's budget (either would show an earlier evaluation there); the count of
+    seeds is given when not all."""
     last = max((r["eval/success_rate"][-1][0] for g in groups.values() for r in g.values()
                 if r.get("eval/success_rate")), default=0)  # fmt: skip
     checkpoints = [c for c in budgets if c <= last] or ([last] if last else [])
@@ -273,8 +275,9 @@ def success_table(groups: dict, budgets=(2500, 5000, 10000, 30000)) -> str:
         for c in checkpoints:
             values = [
                 ([v for s, v in r["eval/success_rate"] if s <= c] or [np.nan])[-1]
-                for r in runs  # a run in progress: only budgets it was evaluated at
-                if "unfinished_at" not in r or r["eval/success_rate"][-1][0] >= c
+                for r in runs  # only budgets within the run's own, and reached if in progress
+                if c <= float(r.get("args", {}).get("total_timesteps", np.inf))
+                and ("unfinished_at" not in r or r["eval/success_rate"][-1][0] >= c)
             ]
             values = [v for v in values if np.isfinite(v)]
             seeds = f" ({len(values)} of {len(runs)} seeds)" if len(values) < len(runs) else ""

@@ -14,12 +14,14 @@ from benchmarks import report
 WINDOW = 5
 
 
-def write_run(runs_dir, name, env_id, seed, returns=(), successes=(), eval_episodes=10):
+def write_run(runs_dir, name, env_id, seed, returns=(), successes=(), eval_episodes=10, total=0):
     """A finished run as benchmarks/run.py lays it out: training returns one per 100 steps,
     evaluation success rates one per 500 steps, and the hyperparameter table."""
     folder = runs_dir / f"{name}__{env_id}__seed{seed}"
     writer = SummaryWriter(str(folder / f"{env_id}__{name}__{seed}__0"))
-    writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n|eval_episodes|{eval_episodes}|")
+    table = f"|param|value|\n|-|-|\n|eval_episodes|{eval_episodes}|"
+    table += f"\n|total_timesteps|{total}|" if total else ""
+    writer.add_text("hyperparameters", table)
     for i, value in enumerate(returns):
         writer.add_scalar("charts/episodic_return", value, 100 * (i + 1))
     for i, value in enumerate(successes):
@@ -166,7 +168,11 @@ def test_unfinished_runs_are_left_out_or_marked_with_the_step_they_reached(tmp_p
     text = results(include_unfinished=True)
     assert "| IPG+HER ‡ | 2 |" in text and "ipg_her seed 2 at 1,000" in text  # not seed 3
     assert "(1/2 seeds; 1 not yet, still running)" in text  # seed 1 reached 0.9, seed 2 not yet
+    write_run(runs, "short", "FetchReach-v4", 1, [-50] * 3, [0.0, 0.4], total=1000)
     monkeypatch.setitem(report.BUDGETS, "push", (500, 1000, 1500))
+    short = next(line for line in results(include_unfinished=True).splitlines()
+                 if line.startswith("| FetchReach-v4 | short | 0"))  # fmt: skip
+    assert short.split(" | ")[2:] == ["0.00 [0.00, 0.00]", "0.40 [0.40, 0.40]", "- |"]
     row = next(line for line in results(include_unfinished=True).splitlines()
                if line.startswith("| FetchReach-v4 | IPG+HER | 0"))  # fmt: skip
     # at 500 and 1,000 both seeds (0.0 and 0.0; 0.5 and 0.2), at 1,500 seed 1 alone (1.0)
