@@ -106,11 +106,9 @@ class ReplayBuffer:
         """The stored rows, the write position and the sampler's state (for resuming a run)."""
         arrays = {
             k: v[: self.filled]
-            for k, v in vars(self).items()
-            if isinstance(v, np.ndarray)
-            and v.shape[:2] == (self.rows, self.num_envs)
-            and not k.startswith("_")
-        }  # fmt: skip (the stored rows, not a cache)
+            for k, v in vars(self).items()  # the (rows, envs) arrays
+            if isinstance(v, np.ndarray) and v.shape[:2] == (self.rows, self.num_envs)
+        }
         return arrays | {"current_start": self.current_start.copy(),
                          "current_length": self.current_length.copy(), "pos": self.pos,
                          "filled": self.filled, "rng": self.rng.bit_generator.state}  # fmt: skip
