@@ -36,6 +36,7 @@ THRESHOLDS = {
 BUDGETS = {  # the success table's columns: FetchReach's scale, or FetchPush's
     "push": (100_000, 200_000, 300_000, 500_000, 1_000_000, 1_500_000),
 }
+LEVELS = {"push": (0.5, 0.9)}  # the reach table's evaluation success levels (goal and stretch)
 LABELS = {"ppo_kl": "PPO-KL", "qprop_ppo": "Q-Prop", "ipg": "IPG (no HER)", "ipg_her": "IPG+HER"}
 
 
@@ -286,6 +287,42 @@ def success_table(groups: dict, budgets=(2500, 5000, 10000, 30000)) -> str:
                 if values
                 else "-"
             )
+        rows.append(f"| {env_id} | {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
+    return "\n".join(rows) if len(rows) > 2 else ""
+
+
+def first_eval_at(run: dict, level: float) -> tuple[float, float]:
+    """(step, training seconds) of the first evaluation with success >= ``level`` (NaN: none).
+    Training seconds are step / ``charts/SPS`` logged at that step (SPS is steps over training
+    time, evaluation excluded, carried across a resumed run's sessions)."""
+    step = next((s for s, v in run.get("eval/success_rate", []) if v >= level), np.nan)
+    sps = [v for s, v in run.get("charts/SPS", []) if s <= step]
+    return step, step / sps[-1] if sps and sps[-1] > 0 else np.nan
+
+
+def reach_table(groups: dict, levels: tuple[float, ...]) -> str:
+    """Goal tasks: per seed, the steps and training hours to the first evaluation at each level;
+    a run in progress that has not reached a level is "not yet", a finished one "never"."""
+    head = " | ".join(
+        f"first eval >= {x}: steps (training h) per seed | median steps" for x in levels
+    )
+    rows = [f"| task | algorithm | {head} |", "| --- | --- |" + " --- |" * 2 * len(levels)]
+    for group in sorted(groups):
+        name, env_id = group.split("__")
+        runs = [r for _, r in sorted(groups[group].items(), key=lambda kv: int(kv[0]))
+                if r.get("eval/success_rate")]  # fmt: skip
+        if not runs:
+            continue
+        cells = []
+        for level in levels:
+            reached = [first_eval_at(r, level) for r in runs]
+            per_seed = [
+                f"{step:,.0f} ({sec / 3600:.1f})" if np.isfinite(step)
+                else "not yet" if "unfinished_at" in r else "never"
+                for (step, sec), r in zip(reached, runs, strict=True)
+            ]  # fmt: skip
+            median = median_steps(np.array([step for step, _ in reached]))
+            cells += [" / ".join(per_seed), f"{median:,.0f}" if np.isfinite(median) else "-"]
         rows.append(f"| {env_id} | {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
     return "\n".join(rows) if len(rows) > 2 else ""
 
@@ -544,6 +581,14 @@ def main(args: Args) -> int:
         )
     success = success_table(groups, BUDGETS.get(args.suite, (2500, 5000, 10000, 30000)))
     success_block = f"{success}\n\n" if success else ""
+    reach = reach_table(groups, LEVELS[args.suite]) if args.suite in LEVELS else ""
+    if reach:
+        success_block += (
+            f"{reach}\n\nSeeds in order of their number; *training h*: hours of training to "
+            "that evaluation, evaluation excluded, from the run's `charts/SPS` (so on the load "
+            "of its sessions: several runs shared two cores); median over all seeds, a seed "
+            "that has not reached the level counting as never.\n\n"
+        )
     diagnostics = diagnostics_table(groups)
     diagnostics_block = ""
     if diagnostics:

@@ -205,3 +205,24 @@ def test_diagnostics_table_against_hand_computed_medians():
         "| 0.35 [0.20, 0.50] |"
     )
     assert report.diagnostics_table({"ppo_kl__Hopper-v5": groups["ppo_kl__FetchReach-v4"]}) == ""
+
+
+def test_reach_table_gives_steps_and_training_hours_per_seed(tmp_path):
+    """Seed 1 first evaluates >= 0.5 at 1,000 steps and >= 0.9 at 1,500; seed 2 (in progress)
+    reaches 0.5 at 1,500 and 0.9 not yet; seed 3 (finished) never. Training seconds are the
+    step over the SPS logged there: 1,000 / 1,000 SPS = 1 s."""
+    runs = tmp_path / "runs" / "push"
+    write_run(runs, "ipg_her", "FetchPush-v4", 1, [-50] * 15, [0.0, 0.6, 0.9])
+    write_run(runs, "ipg_her", "FetchPush-v4", 2, [-50] * 15, [0.0, 0.2, 0.5])
+    write_run(runs, "ipg_her", "FetchPush-v4", 3, [-50] * 15, [0.0, 0.1, 0.1])
+    groups = report.collect(runs, WINDOW)
+    groups["ipg_her__FetchPush-v4"]["2"]["unfinished_at"] = 1500
+    run = groups["ipg_her__FetchPush-v4"]["1"]
+    run["charts/SPS"] = [[500, 250], [1000, 1000], [1500, 500]]
+    assert report.first_eval_at(run, 0.5) == (1000, 1.0)
+    assert report.first_eval_at(run, 0.9) == (1500, 3.0)
+    assert np.isnan(report.first_eval_at(run, 0.95)[0])
+    row = report.reach_table(groups, (0.5, 0.9)).splitlines()[2]
+    # seed 2 and 3 log SPS 1000 at step 1,500: 1.5 s = 0.0 h
+    assert row.split(" | ")[2:] == ["1,000 (0.0) / 1,500 (0.0) / never", "1,500",
+                                    "1,500 (0.0) / not yet / never", "- |"]  # fmt: skip
