@@ -37,6 +37,7 @@ BUDGETS = {  # the success table's columns: FetchReach's scale, or FetchPush's
     "push": (100_000, 200_000, 300_000, 500_000, 1_000_000, 1_500_000),
 }
 LEVELS = {"push": (0.5, 0.9)}  # the reach table's evaluation success levels (goal and stretch)
+FRESH_SEED = 11  # mixing: the finalists ran on seeds from 11 on, the screens on seeds 1-5
 LABELS = {"ppo_kl": "PPO-KL", "qprop_ppo": "Q-Prop", "ipg": "IPG (no HER)", "ipg_her": "IPG+HER"}
 
 
@@ -327,6 +328,38 @@ def reach_table(groups: dict, levels: tuple[float, ...]) -> str:
     return "\n".join(rows) if len(rows) > 2 else ""
 
 
+def mean_and_interval(values: np.ndarray, rng, digits: int) -> str:
+    """Mean over seeds and its 95% bootstrap confidence interval: "mean [lo, hi]"."""
+    lo, hi = bootstrap_band(np.asarray(values, float)[:, None], rng)
+    return f"{np.nanmean(values):,.{digits}f} [{lo[0]:,.{digits}f}, {hi[0]:,.{digits}f}]"
+
+
+def finalists_table(groups: dict, rng, first_fresh: int = FRESH_SEED) -> str:
+    """The finalists on their fresh seeds only (seeds >= ``first_fresh``, none tuned on): per
+    variant, the mean and 95% bootstrap interval over those seeds of the evaluation at an early
+    budget and at the end, and of the final training figure. Empty if no variant has two."""
+    rows = ["| task | algorithm | fresh seeds | eval @ early budget | last eval "
+            "| final (training) |", "| --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+    for group in sorted(groups):
+        name, env_id = group.split("__")
+        seeds = sorted(int(s) for s in groups[group] if int(s) >= first_fresh)
+        runs = [groups[group][str(s)] for s in seeds]
+        if len(runs) < 2:
+            continue
+        goal = env_id.startswith("Fetch")
+        tag, early, digits = ("eval/success_rate", 2_500, 2) if goal else \
+            ("eval/episodic_return", 100_000, 0)  # fmt: skip
+        cells = [
+            f"{len(runs)} ({seeds[0]}-{seeds[-1]})",
+            f"@ {early:,}: "
+            + mean_and_interval([value_at(r, tag, early) for r in runs], rng, digits),
+            mean_and_interval([r[tag][-1][1] for r in runs], rng, digits),
+            mean_and_interval([r["final"] for r in runs], rng, digits),
+        ]
+        rows.append(f"| {env_id} | {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
+    return "\n".join(rows) if len(rows) > 2 else ""
+
+
 def median_over_updates(run: dict, tag: str) -> float | None:
     return float(np.median([v for _, v in run[tag]])) if run.get(tag) else None
 
@@ -588,6 +621,14 @@ def main(args: Args) -> int:
             "that evaluation, evaluation excluded, from the run's `charts/SPS` (so on the load "
             "of its sessions: several runs shared two cores); median over all seeds, a seed "
             "that has not reached the level counting as never.\n\n"
+        )
+    finalists = finalists_table(groups, rng) if args.suite == "mixing" else ""
+    if finalists:
+        success_block += (
+            f"{finalists}\n\nThe finalists on fresh seeds only (seeds {FRESH_SEED} and up; the "
+            "screen's seeds are pooled in the rows above): mean over seeds [95% bootstrap "
+            "interval of the mean]. Early budget: 2,500 steps on FetchReach, 100,000 on Hopper; "
+            "*final (training)*: as *final* above.\n\n"
         )
     diagnostics = diagnostics_table(groups)
     diagnostics_block = ""

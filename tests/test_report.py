@@ -226,3 +226,23 @@ def test_reach_table_gives_steps_and_training_hours_per_seed(tmp_path):
     # seed 2 and 3 log SPS 1000 at step 1,500: 1.5 s = 0.0 h
     assert row.split(" | ")[2:] == ["1,000 (0.0) / 1,500 (0.0) / never", "1,500",
                                     "1,500 (0.0) / not yet / never", "- |"]  # fmt: skip
+
+
+def test_finalists_table_reads_fresh_seeds_only_with_bootstrap_intervals(tmp_path):
+    """Seeds 1-2 (the screen) are left out; over fresh seeds 11-13 the mean is exact and the
+    95% bootstrap interval of the mean lies within the seeds' range (equal values: a point)."""
+    runs = tmp_path / "runs" / "mixing"
+    for seed, success in ((1, 0.0), (2, 0.0), (11, 0.4), (12, 0.6), (13, 0.8)):
+        write_run(
+            runs, "ipg_her_nu0.8_b100", "FetchReach-v4", seed, [-50] * 15, [0.2] * 5 + [success]
+        )
+    write_run(runs, "ipg_her_nu1.0_b100", "FetchReach-v4", 11, [-50] * 15, [1.0, 1.0])
+    groups = report.collect(runs, WINDOW)
+    rows = report.finalists_table(groups, np.random.default_rng(0)).splitlines()
+    assert len(rows) == 3, "nu 1.0 has one fresh seed: no interval, no row"
+    cells = rows[2].split(" | ")
+    assert cells[2] == "3 (11-13)"
+    assert cells[3] == "@ 2,500: 0.20 [0.20, 0.20]", "2,500 steps: the same in all"
+    mean, lo, hi = map(float, re.findall(r"[0-9.]+", cells[4]))
+    assert mean == 0.6 and 0.4 <= lo < mean < hi <= 0.8
+    assert report.finalists_table({}, np.random.default_rng(0)) == ""
