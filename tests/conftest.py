@@ -28,6 +28,15 @@ def run_dirs(log_dir: Path) -> list[Path]:
     return sorted(p for p in Path(log_dir).iterdir() if p.is_dir())
 
 
+def smoke_run(script: str, log_dir: Path, env_id: str, *flags: str) -> tuple[Path, dict]:
+    """Train ``script`` on ``env_id`` with a tiny budget (``flags``): it must exit 0 into one
+    run folder. Returns that folder and its scalars."""
+    result = run_script(script, log_dir, "--env-id", env_id, *flags)
+    assert result.returncode == 0, result.stderr
+    (run_dir,) = run_dirs(log_dir)
+    return run_dir, scalars(run_dir)
+
+
 def scalars(run_dir: Path) -> dict[str, list[tuple[int, float]]]:
     """Every scalar tag of a run folder's event file(s): tag -> [(step, value), ...]."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator

@@ -3,6 +3,7 @@
 
 import numpy as np
 import pytest
+from conftest import assert_clean_error, run_dirs, run_script
 
 import ipg_her
 import ppo_kl
@@ -123,3 +124,11 @@ def test_progress_line_is_silent_when_output_is_not_a_terminal(capsys):
     assert capsys.readouterr().out == ""
     progress.close(1000, np.array([1.0, 3.0]), np.array([1.0, 0.0]))
     assert "last evaluation: return 2.0, success 0.50" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_bad_input_end_to_end_fails_with_one_clear_line_and_no_run_folder(tmp_path, script):
+    """The same check run as a user runs it: a subprocess, one line, no run folder."""
+    result = run_script(f"{script}.py", tmp_path, "--total-timesteps", "0", timeout=60)
+    assert_clean_error(result, "--total-timesteps")
+    assert not (tmp_path.exists() and run_dirs(tmp_path)), "no run folder for rejected input"
