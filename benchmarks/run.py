@@ -156,6 +156,9 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
                       "--learning-starts", "10000", "--eval-freq", "20000", *every)  # fmt: skip
         grid += [hopper(f"ipg_nu{nu}_300k", "ipg_her.py", "--nu", str(nu), *hopper_ipg)
                  for nu in (0.0, 0.2, 0.5, 0.8, 1.0)]  # fmt: skip
+        # the winner to 1M steps: nu = 0 (no middle beat it on fresh seeds), run in parts
+        to_1m = ("--total-timesteps", "1000000", "--resume-freq", "100000", *hopper_ipg[2:])
+        grid.append(hopper("ipg_nu0.0_1M", "ipg_her.py", "--nu", "0.0", *to_1m))
         grid.append(hopper("ipg_nu0.2_cv_batch_300k", "ipg_her.py", "--nu", "0.2", "--use-cv",
                            "--off-policy-states", "batch", *hopper_ipg))  # fmt: skip
         # the off-policy end with DDPG's slow target (tau 0.005, not FetchReach's 0.05): at 2,048
