@@ -61,6 +61,10 @@ class Args:
     """what the merged groups were measured on (shown in the table's note)"""
     readme: str = ""
     """also write table and figures into this README, between <!-- results:{suite}:start/end -->"""
+    keep_export: bool = False
+    """also keep the runs of the results folder's own curves.json that the run folders lack (run
+    folders are not committed: on a new machine, the runs of earlier sessions live only in the
+    export), so running more seeds of a suite adds to its results instead of replacing them"""
     include_unfinished: bool = False
     """also read runs that have not finished (a long run between two of its sessions), marked in
     the table with the step each reached"""
@@ -563,6 +567,11 @@ def main(args: Args) -> int:
             )
             return 2
         groups = collect(runs_dir, args.window, args.include_unfinished)
+        if args.keep_export and (results / "curves.json").is_file():  # seed by seed
+            for group, runs in json.loads((results / "curves.json").read_text()).items():
+                for seed, run in runs.items():
+                    if seed not in groups.get(group, {}) and "measured_on" not in run:
+                        groups[group][seed] = run | {"kept": True}
         if args.merge_export:  # rows the runs lack, from an earlier export, kept visibly apart
             earlier = json.loads(Path(args.merge_export).read_text())
             for group, runs in earlier.items():
@@ -602,6 +611,13 @@ def main(args: Args) -> int:
     merged_note = (
         f"† measured on {', '.join(earlier)}, not re-run on this code.\n\n" if earlier else ""
     )
+    kept = sum("kept" in r for g in groups.values() for r in g.values())
+    if kept:
+        merged_note += (
+            f"{kept} of the {sum(map(len, groups.values()))} runs were read from this suite's "
+            "own earlier export (`curves.json`: their event files were on an earlier machine), "
+            "the others from their event files.\n\n"
+        )
     unfinished = [f"{g.split('__')[0]} seed {seed} at {r['unfinished_at']:,}"
                   for g, runs in sorted(groups.items()) for seed, r in sorted(runs.items())
                   if "unfinished_at" in r]  # fmt: skip

@@ -144,6 +144,28 @@ def test_rows_merged_from_an_earlier_export_are_marked(tmp_path):
     assert "| FetchReach-v4 | IPG+HER | 1 | 1.00" in text  # the new run, not the merged one
 
 
+def test_keep_export_adds_new_seeds_to_the_runs_of_an_earlier_machine(tmp_path):
+    """--keep-export: seeds whose run folders are gone (a new machine) are read from the suite's
+    own curves.json, seed by seed and named in the note; a seed with a run folder is read from
+    its events; without the flag the export is replaced."""
+    import shutil
+
+    runs, results = tmp_path / "runs" / "mixing", tmp_path / "results"
+    args = dict(suite="mixing", runs_dir=str(tmp_path / "runs"), results_dir=str(results))
+    write_run(runs, "algo", "Hopper-v5", 1, [100.0] * 10)
+    write_run(runs, "algo", "Hopper-v5", 2, [300.0] * 10)
+    assert report.main(report.Args(**args)) == 0
+    shutil.rmtree(runs)  # the machine is gone, the export stays
+    write_run(runs, "algo", "Hopper-v5", 2, [500.0] * 10)  # seed 2 re-run, seed 3 new
+    write_run(runs, "algo", "Hopper-v5", 3, [900.0] * 10)
+    assert report.main(report.Args(**args, keep_export=True)) == 0
+    text = (results / "results.md").read_text()
+    assert "| Hopper-v5 | algo | 3 | 500 ± 400 |" in text  # seeds 1 (100), 2 (500), 3 (900)
+    assert "1 of the 3 runs were read from this suite's own earlier export" in text
+    assert report.main(report.Args(**args)) == 0  # without the flag: the run folders only
+    assert "| Hopper-v5 | algo | 2 | 700 ± 283 |" in (results / "results.md").read_text()
+
+
 def test_unfinished_runs_are_left_out_or_marked_with_the_step_they_reached(tmp_path, monkeypatch):
     """A run between two sessions (no exit code, a resume point) is not a result: left out by
     default; with --include-unfinished it is marked ‡ with its last step, a success budget it
