@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import scalars
 
-from benchmarks import report, run
+from benchmarks import report, run, update_speed
 
 
 def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path, capsys):
@@ -84,3 +84,9 @@ def test_quick_suite_on_a_local_ray_instance(tmp_path):
         assert (tmp_path / "quick" / r.folder / "exit_code").read_text().strip() == "0"
         assert any(p.is_dir() for p in (tmp_path / "quick" / r.folder).iterdir()), "no event folder"
     assert run.main(args) == 0  # resume works the same way
+
+
+def test_update_speed_times_the_full_eager_update():
+    timing = update_speed.time_updates("eager", update_speed.Args(repeats=1))
+    assert timing["minibatch_steps"] == 320  # 10 epochs x 32 minibatches, ppo_kl.py's defaults
+    assert 0 < timing["min_s"] <= timing["median_s"]
