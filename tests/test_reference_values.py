@@ -1,0 +1,65 @@
+"""A refactor keeps the numbers: short runs of each script, same seed and flags, must log the
+same scalars, bit for bit, as the values recorded in ``reference_values.json``.
+
+The values were recorded at the commit before the teaching-edition restructuring (fb5d47c) and
+are re-recorded only by a commit that changes the numbers on purpose, saying why:
+
+    python tests/test_reference_values.py --record
+"""
+
+import json
+import sys
+
+import pytest
+from conftest import ROOT, run_dirs, run_script, scalars
+
+REFERENCE = ROOT / "tests" / "reference_values.json"
+TIMED = ("charts/SPS",)  # wall-clock figures: never the same twice
+CONFIGS = {
+    "ppo_kl_hopper": ("ppo_kl.py", "--env-id", "Hopper-v5", "--total-timesteps", "1536",
+                      "--num-envs", "2", "--num-steps", "256", "--num-minibatches", "4",
+                      "--update-epochs", "2", "--eval-freq", "512", "--eval-episodes", "1",
+                      "--kl-early-stop", "1.5"),
+    "qprop_hopper": ("qprop_ppo.py", "--env-id", "Hopper-v5", "--total-timesteps", "1536",
+                     "--num-envs", "2", "--num-steps", "256", "--num-minibatches", "4",
+                     "--update-epochs", "2", "--eval-freq", "512", "--eval-episodes", "1",
+                     "--learning-starts", "256", "--critic-steps", "8"),
+    "ipg_her_fetchreach": ("ipg_her.py", "--env-id", "FetchReach-v4", "--total-timesteps", "600",
+                           "--critic-steps", "8", "--eval-freq", "200", "--eval-episodes", "2",
+                           "--diagnostics-every", "1", "--eval-workers", "0"),
+    "ipg_cv_hopper": ("ipg_her.py", "--env-id", "Hopper-v5", "--total-timesteps", "1536",
+                      "--num-envs", "2", "--num-steps", "256", "--num-minibatches", "4",
+                      "--update-epochs", "2", "--nu", "0.5", "--use-cv", "--q-bar", "sample",
+                      "--norm-reward", "--learning-starts", "256", "--critic-steps", "8",
+                      "--eval-freq", "512", "--eval-episodes", "1", "--diagnostics-every", "1",
+                      "--eval-workers", "0"),
+}  # fmt: skip
+
+
+def logged(name: str, log_dir) -> dict:
+    script, *flags = CONFIGS[name]
+    result = run_script(script, log_dir, "--seed", "3", *flags)
+    assert result.returncode == 0, result.stderr
+    (run_dir,) = run_dirs(log_dir)
+    return {tag: values for tag, values in scalars(run_dir).items() if tag not in TIMED}
+
+
+@pytest.mark.parametrize("name", CONFIGS)
+def test_the_same_seed_and_flags_log_the_recorded_scalars(tmp_path, name):
+    expected = json.loads(REFERENCE.read_text())[name]
+    got = json.loads(json.dumps(logged(name, tmp_path)))  # the same float -> JSON round trip
+    assert sorted(got) == sorted(expected), "the logged tags changed"
+    for tag in expected:
+        assert got[tag] == expected[tag], f"{name}: {tag} differs from the recorded values"
+
+
+if __name__ == "__main__" and sys.argv[1:] == ["--record"]:
+    import tempfile
+    from pathlib import Path
+
+    values = {}
+    for name in CONFIGS:
+        with tempfile.TemporaryDirectory() as d:
+            values[name] = logged(name, Path(d))
+    REFERENCE.write_text(json.dumps(values, indent=0, sort_keys=True) + "\n")
+    print(f"recorded {sum(len(v) for v in values.values())} tags into {REFERENCE}")
