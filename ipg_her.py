@@ -1,72 +1,23 @@
 """Interpolated Policy Gradient (paper eq. 10) on PPO-KL, with Hindsight Experience Replay (Fig. 2).
 
-Docs: README.md, section "IPG + HER". Papers: Gu et al. 2017, "Interpolated Policy Gradient";
-Andrychowicz et al. 2017, "Hindsight Experience Replay"; Schulman et al. 2017 (PPO-KL).
+Docs: docs/ipg_her.md. Papers: Gu et al. 2017, "Interpolated Policy Gradient"; Andrychowicz et
+al. 2017, "Hindsight Experience Replay"; Schulman et al. 2017 (PPO-KL).
 
-IPG mixes an on-policy likelihood-ratio gradient with an off-policy one through a critic Q_w:
+IPG mixes the on-policy likelihood-ratio gradient with an off-policy one through a critic Q_w:
 
-    grad J = (1 - nu) E_{rho^pi, pi}[grad log pi(a|s) A_hat(s, a)]
-             + nu E_{s ~ beta}[grad Q_bar_w(s)]                                          (eq. 10)
+    grad J = (1 - nu) E_{rho, pi}[grad log pi(a|s) A_hat(s, a)] + nu E_{s ~ beta}[grad Q_bar_w(s)]
 
-with Q_bar_w(s) = E_{a ~ pi}[Q_w(s, a)], estimated by Q_w(s, mu_theta(s)) (``--q-bar mean``, the
-default: the deterministic policy gradient of eq. 7) or by one reparameterised sample
-Q_w(s, mu_theta(s) + sigma_theta eps) (``--q-bar sample``, which also gives sigma a gradient).
-The choice matters at nu near 1, where the likelihood-ratio term, the other signal for sigma,
-has no weight: with the mean, sigma follows only the KL penalty, whose gradient in log sigma,
-1 - (sigma_old^2 + delta^2) / sigma^2, widens sigma whenever the mean moves by delta, so sigma
-only grows (FetchReach's entropy rises from 5.7 to about 7 over 30,000 steps; FetchPush's to 13
-over 300,000, sigma about 6 on actions bounded to [-1, 1], so that the behaviour policy acts
-almost at random). With the sample it falls, but the noisy gradient slows learning (FetchReach:
-2,000 steps to 0.9 instead of 1,500 in 5 of 5 seeds, measured). Evaluation uses the mean.
-nu = 0 is PPO-KL, nu = 1 is DDPG with a stochastic exploring policy. Here the on-policy part
-is PPO-KL's surrogate (eq. 5), so one minibatch loss is
-
-    L = (1 - nu) * -E[r_t(theta) A_t] + nu * -E_{s ~ beta}[Q_w(s, mu_theta(s))]
-        + beta_KL * KL[pi_old || pi_theta]
-
-(the KL coefficient is called ``beta`` in the code, as in ``ppo_kl.py``; the state distribution
-beta of the paper is ``--off-policy-states``: ``replay``, uniform over the replay buffer, as the
-IPG paper found best, or ``batch``, the on-policy states). With ``--use-cv`` the learning signal
-becomes A_hat - A_bar, A_bar the Taylor control variate of Q-Prop (eq. 9), and the off-policy
-term's weight becomes 1 (IPG's b = 1).
-
-Normalisation (``--normalization``): PPO normalises the likelihood-ratio signal to unit std
-sigma, while Q_w stays in return units; left so (``paper``, what the reference code did), the
-weight ratio of the two terms is nu sigma / (1 - nu), not nu / (1 - nu), and nu's meaning drifts
-with the reward scale. ``unbiased`` (the default) divides the off-policy term by the same sigma,
-so that the whole update is a positive multiple of eq. 10 and nu is eq. 10's nu whatever the
-reward scale (tests/test_ipg.py checks that scaling rewards and critic by c leaves the update
-unchanged). The KL penalty, its bounded beta and the separate gradient clipping of policy and V
-are ``ppo_kl.py``'s.
-
-Critic (eq. 6-7): Q_w(s, a) learns off-policy from the replay buffer with the target
-r + gamma (1 - terminated) Q_w'(s', mu_theta(s')), using the current policy's mean at s' (no target
-policy network), and a soft target update after every critic step (eq. 6). Rewards are stored raw
-and scaled at sample time by the same running std that scales GAE's rewards, so critic and GAE
-share one scale; the replay stores the action executed (clipped to the bounds). The critic
-trains on the new data *before* the policy update, so A_bar and the off-policy term use the
-updated critic. On goal tasks the targets are clipped to
-[-1/(1-gamma), 0], the returns a 0/-1 reward allows (OpenAI baselines' HER recipe), so that the
-critic cannot drift above the best possible return.
-
-HER (Figure 2) enters only through the off-policy parts: the critic learns from relabelled
-transitions, and the off-policy term is evaluated at relabelled (state, goal) pairs. The
-likelihood-ratio term keeps the real goals: a relabelled on-policy sample is not a sample of the
-policy conditioned on the new goal, so using it would need importance weights (Rauber et al.
-2019, "Hindsight Policy Gradients"); the off-policy terms need no such correction.
-
-Inputs are normalised by running statistics, observation and goal separately. The replay buffer
-stores raw observations and normalises them at sample time with the current statistics, so
-stored data never goes stale when the statistics drift; the on-policy batch is normalised once,
-when collected, since the policy must be updated on the inputs it acted on.
+(eq. 10), Q_bar_w(s) = E_{a ~ pi}[Q_w(s, a)] taken as Q_w(s, mu(s)) or one reparameterised sample.
+nu = 0 is PPO-KL, nu = 1 DDPG with a stochastic exploring policy. One minibatch loss is
+(1 - nu) (-E[r_t A_t]) + nu (-E_{s ~ beta}[Q_bar_w(s)]) + beta_KL KL[pi_old || pi]; the KL
+coefficient is ``beta`` as in ppo_kl.py, the paper's state distribution beta is
+``--off-policy-states``. HER enters only through the off-policy parts: the critic and the
+off-policy term see relabelled goals; the likelihood-ratio term keeps the real ones.
 """
 
 import copy
 import functools
-import os
-import random
 import sys
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
@@ -78,60 +29,34 @@ import torch.nn as nn
 import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
-from common import checkpoint, cli, seeding
-from common.evaluate import BackgroundEvaluator
+from common import cli
 from common.gae import compute_gae
 from common.her import HerReplayBuffer, ReplayBuffer
-from common.normalizer import InputNormalizer, RunningMeanStd
+from common.normalizer import InputNormalizer, RewardScaler
+from common.run import Run, RunArgs
 
 cli.register_goal_tasks()
 torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
-SCRIPT = os.path.basename(__file__)[: -len(".py")]
 BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
 
 
 @dataclass
-class Args:
-    exp_name: str = SCRIPT
-    """the name of this experiment (part of the run folder's name)"""
-    seed: int = 1
-    """the run's seed: every random stream of the run derives from it (common/seeding.py)"""
-    torch_deterministic: bool = True
-    """sets `torch.backends.cudnn.deterministic` (CleanRL's flag; it only matters on a GPU: CPU
-    runs are deterministic for a given seed either way)"""
-    capture_video: bool = False
-    """record the evaluation episodes as videos into the run folder (needs moviepy)"""
-    save_model: bool = False
-    """save a checkpoint (weights, normaliser, args) as model.pt in the run folder at the end"""
-    save_freq: int = 0
-    """with --save-model, also save every this many environment steps (0: only at the end)"""
-    resume_freq: int = 0
-    """write resume.pt into the run folder every this many env steps and at the end (0: never):
-    everything the run needs to go on after an interruption (see --resume)"""
-    resume: str | None = None
-    """go on with the run in this run folder from its resume.pt: give the command that started
-    it (a larger --total-timesteps extends it). The environments restart with fresh episodes, so
-    the run goes on as a valid run, not as the same numbers an uninterrupted one gives"""
-    log_dir: str = "runs"
-    """parent folder of the run folders"""
+class Args(RunArgs):
+    """IPG with HER: an on-/off-policy interpolated policy gradient; see docs/ipg_her.md."""
+
     eval_freq: int = 2500
     """evaluate the deterministic (mean) policy every this many env steps (0: only at the end)"""
     eval_episodes: int = 20
     """episodes per evaluation"""
-    eval_workers: int = 1
-    """evaluate in a background process, so that training goes on meanwhile (0: in this one)"""
-    torch_threads: int = 1
-    """torch intra-op threads; one is fastest for these small networks (measured)"""
     diagnostics_every: int = 10
-    """log the gradient diagnostics ipg/* (norms, effective nu, variances) every this many
-    updates (1: every update; 0: never). They draw from a stream of their own: on or off, the
-    training is the same"""
+    """log the gradient diagnostics ipg/* every this many updates (0: never); they draw from
+    their own random stream, so the training is the same with or without them"""
 
     # Algorithm specific arguments
     env_id: str = "FetchReach-v4"
     """the id of the gymnasium environment"""
     total_timesteps: int = 30_000
-    """environment steps to train for, counted over all parallel envs"""
+    """environment steps to train for, counted over all parallel envs (whole batches)"""
     num_envs: int = 2
     """the number of parallel environments"""
     num_steps: int = 50
@@ -141,7 +66,7 @@ class Args:
     anneal_lr: bool = False
     """anneal the learning rate linearly to zero"""
     gamma: float = 0.98
-    """the discount factor gamma"""
+    """the discount factor gamma (0.98: OpenAI's HER recipe)"""
     gae_lambda: float = 0.95
     """lam of GAE (eq. 4)"""
     num_minibatches: int = 1
@@ -151,8 +76,8 @@ class Args:
     norm_adv: bool = True
     """normalise the advantages of a batch to zero mean and unit std"""
     kl_target: float = 0.1
-    """d_targ: the mean KL divergence per update the beta rule aims for (0.01, PPO's, held the
-    off-policy end back: FetchReach needed 3,000 steps instead of 1,500, measured)"""
+    """d_targ, the mean KL divergence per update that the beta rule aims for (looser than
+    PPO-KL's: the off-policy end takes larger steps; docs/ipg_her.md)"""
     beta_init: float = 1.0
     """initial KL penalty coefficient beta (the PPO paper: insensitive)"""
     kl_early_stop: float | None = None
@@ -164,7 +89,7 @@ class Args:
     max_grad_norm: float = 0.5
     """the maximum gradient norm, of the policy and of V each (clipped separately)"""
     hidden: int = 64
-    """width of the two hidden layers of every network (128 learned no faster, at twice the cost)"""
+    """width of the two hidden layers of every network"""
     norm_reward: bool = False
     """divide rewards by the running std of the discounted return (GAE and critic alike)"""
 
@@ -190,9 +115,9 @@ class Args:
     critic_batch_size: int = 256
     """transitions per critic step"""
     critic_steps: int = 50
-    """critic steps per iteration (20 needed 2,000-2,500 steps to 0.9 on FetchReach, 50 1,500)"""
+    """critic steps per iteration"""
     tau: float = 0.05
-    """soft target update rate of eq. 6 (after every critic step)"""
+    """soft target update rate of eq. 6 (after every critic step; 0.05: OpenAI's HER recipe)"""
     learning_starts: int = 100
     """environment steps before the critic and the off-policy term start"""
 
@@ -226,14 +151,9 @@ def check_args(args: Args, argv: list[str]) -> None:
 
 
 # ENV SETUP
-def make_env(env_id: str, video_dir: str | None = None):
+def make_env(env_id: str):
     def thunk():
-        env = gym.make(env_id, render_mode="rgb_array" if video_dir else None)
-        if video_dir:
-            env = gym.wrappers.RecordVideo(
-                env, video_dir, episode_trigger=lambda e: True, disable_logger=True
-            )
-        return gym.wrappers.RecordEpisodeStatistics(env)
+        return gym.wrappers.RecordEpisodeStatistics(gym.make(env_id))
 
     return thunk
 
@@ -295,14 +215,8 @@ class QNetwork(nn.Module):
 
 
 # ALGO LOGIC: rollout with the current policy
-def collect_rollout(
-    envs,
-    agent: Agent,
-    norm: InputNormalizer,
-    raw_obs,
-    num_steps: int,
-    rb: ReplayBuffer,
-):
+def collect_rollout(envs, agent: Agent, norm: InputNormalizer, raw_obs, num_steps: int,
+                    rb: ReplayBuffer):  # fmt: skip
     """Step the vector env ``num_steps`` times with actions sampled from pi_theta; every
     transition also goes raw into the replay buffer ``rb``, with its real next observation.
 
@@ -314,39 +228,35 @@ def collect_rollout(
     """
     T, N, act_dim = num_steps, envs.num_envs, envs.single_action_space.shape[0]
     low, high = envs.single_action_space.low, envs.single_action_space.high
-    input_dim = norm.raw(raw_obs).shape[-1]
-    ro = {"obs": torch.zeros((T, N, input_dim)), "final_obs": torch.zeros((T, N, input_dim)),
+    obs_dim = norm(raw_obs).shape[-1]  # observation and goal
+    ro = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
           "actions": torch.zeros((T, N, act_dim)), "rewards": torch.zeros((T, N)),
           "terminations": torch.zeros((T, N)), "episode_ends": torch.zeros((T, N))}  # fmt: skip
     episodes = []
     for t in range(T):
         norm.update(raw_obs)
-        ro["obs"][t] = norm.raw(raw_obs)
+        ro["obs"][t] = norm(raw_obs)
         with torch.no_grad():
             ro["actions"][t] = agent.dist(ro["obs"][t]).sample()
-        action = ro["actions"][t].numpy()
-        executed = np.clip(action, low, high)  # the critic learns Q of the action executed
+        executed = np.clip(ro["actions"][t].numpy(), low, high)  # the critic learns its Q
         next_raw_obs, reward, terminated, truncated, infos = envs.step(executed)
         ended = terminated | truncated
         ro["rewards"][t] = torch.as_tensor(reward)
         ro["terminations"][t] = torch.as_tensor(terminated)
         ro["episode_ends"][t] = torch.as_tensor(ended)
+        real_next_obs = copy.deepcopy(next_raw_obs) if ended.any() else next_raw_obs
         # SAME_STEP autoreset: where an episode ended, next_raw_obs[i] is the next one's first
-        real_next_obs = next_raw_obs
-        if ended.any():  # copy only then: most steps end no episode
-            real_next_obs = copy.deepcopy(next_raw_obs)
         for i in np.flatnonzero(ended):
-            if norm.goal_task:
-                for key in real_next_obs:
-                    real_next_obs[key][i] = infos["final_obs"][i][key]
-            else:
+            for key in real_next_obs if norm.goal_task else ():
+                real_next_obs[key][i] = infos["final_obs"][i][key]
+            if not norm.goal_task:
                 real_next_obs[i] = infos["final_obs"][i]
-            ro["final_obs"][t, i] = norm.raw(infos["final_obs"][i])
+            ro["final_obs"][t, i] = norm(infos["final_obs"][i])
             info = infos["final_info"]
             success = float(info["is_success"][i]) if "is_success" in info else None
             episode_return, length = float(info["episode"]["r"][i]), int(info["episode"]["l"][i])
             episodes.append((t, i, episode_return, length, success))
-        if norm.goal_task:
+        if norm.goal_task:  # HER needs the goals: achieved before and after, desired
             rb.add(
                 obs=raw_obs["observation"], actions=executed, rewards=reward,
                 next_obs=real_next_obs["observation"], terminations=terminated,
@@ -363,31 +273,8 @@ def collect_rollout(
     return ro, raw_obs, episodes
 
 
-def scale_rewards(
-    rewards: torch.Tensor,
-    episode_ends: torch.Tensor,
-    ret_rms: RunningMeanStd,
-    running_return: np.ndarray,
-    gamma: float,
-) -> torch.Tensor:
-    """Divide rewards by the running std of the discounted return (CleanRL's NormalizeReward).
-
-    ``running_return`` (one per env) carries the discounted return across batches; it is reset
-    where an episode ends. The statistics are updated with this batch before scaling.
-    """
-    returns = np.zeros(rewards.shape)
-    for t in range(rewards.shape[0]):
-        running_return[:] = running_return * gamma + rewards[t].numpy()
-        returns[t] = running_return
-        running_return[episode_ends[t].numpy() > 0] = 0.0
-    ret_rms.update(returns.reshape(-1))
-    return rewards / float(np.sqrt(ret_rms.var + 1e-8))
-
-
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
-def make_batch(
-    agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae_lambda: float
-) -> dict:
+def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae_lambda: float):
     """GAE advantages and the pi_old statistics of a rollout, flattened into one batch.
 
     V(s_{t+1}) is the next row's value within an episode, V(final_obs) where the episode ended at
@@ -413,7 +300,6 @@ def make_batch(
             "std": pi_old.stddev.reshape(-1, act_dim),
             "advantages": advantages.flatten(),
             "returns": (advantages + values).flatten(),
-            "next_values": next_values.flatten(),
         }
 
 
@@ -435,8 +321,8 @@ def sample_replay(
     data = rb.sample(batch_size * count, rng)
     goal = data["desired_goal"] if norm.goal_task else None
     tensors = {
-        "obs": norm(data["obs"], goal),
-        "next_obs": norm(data["next_obs"], goal),
+        "obs": norm.inputs(data["obs"], goal),
+        "next_obs": norm.inputs(data["next_obs"], goal),
         "actions": torch.as_tensor(data["actions"]),
         "rewards": torch.as_tensor(data["rewards"] * reward_scale),
         "terminations": torch.as_tensor(data["terminations"]),
@@ -503,90 +389,6 @@ def control_variate(
     mu.requires_grad_(True)
     (grad_q,) = torch.autograd.grad(qf(obs, mu).sum(), mu)
     return (grad_q * (actions - mu)).sum(-1).detach()
-
-
-# ALGO LOGIC: the IPG update (eq. 10) on the PPO-KL surrogate (eq. 5)
-def ipg_update(
-    agent: Agent,
-    optimizer: optim.Optimizer,
-    b: dict,
-    beta: float,
-    args: Args,
-    qf: QNetwork | None = None,
-    replay_states: Callable[[], torch.Tensor] | None = None,
-) -> tuple[float, dict]:
-    """``update_epochs`` passes of minibatch Adam on the interpolated loss with the KL penalty,
-    then the beta rule.
-
-    ``b`` is ``ppo_kl.ppo_kl_update``'s batch, with ``cv`` (A_bar) when ``args.use_cv``. The
-    off-policy term's states s ~ beta are the minibatch's own (``--off-policy-states batch``) or
-    a fresh draw ``replay_states()`` from the replay buffer for each minibatch. With nu = 0 and
-    no control variate this is exactly ``ppo_kl_update``. Returns the new beta and the statistics
-    to log.
-    """
-    batch_size = b["obs"].shape[0]
-    minibatch_size = batch_size // args.num_minibatches
-    # A_hat (A_hat - A_bar with the control variate), on the raw scale
-    learning_signal = b["advantages"] - b["cv"] if args.use_cv else b["advantages"]
-    off_scale, signal_std = 1.0, learning_signal.std()
-    if args.norm_adv:
-        learning_signal = (learning_signal - learning_signal.mean()) / (signal_std + 1e-8)
-        if args.normalization == "unbiased":
-            off_scale = 1.0 / (signal_std.item() + 1e-8)  # the same 1/sigma on both terms
-    off_weight = 1.0 if args.use_cv else args.nu  # b = 1 with the control variate
-    use_off_policy = qf is not None and off_weight > 0
-    pi_old = Normal(b["mean"], b["std"])
-    on_term, off_term = torch.zeros(()), torch.zeros(())
-    epochs_run = 0
-    for epoch in range(args.update_epochs):
-        perm = torch.randperm(batch_size)
-        for start in range(0, batch_size, minibatch_size):
-            mb = perm[start : start + minibatch_size]
-            pi = agent.dist(b["obs"][mb])
-            pi_old_mb = Normal(b["mean"][mb], b["std"][mb])
-            kl = kl_divergence(pi_old_mb, pi).sum(-1).mean()  # analytic Gaussian KL
-            pg_loss = beta * kl
-            if args.nu < 1:  # the likelihood-ratio part, eq. 5's (weight 0 at nu = 1: skipped)
-                logratio = pi.log_prob(b["actions"][mb]).sum(-1) - b["logprobs"][mb]
-                on_term = -(logratio.exp() * learning_signal[mb]).mean()  # r_t(theta) A
-                pg_loss = pg_loss + (1.0 - args.nu) * on_term
-            if use_off_policy:
-                on_policy = args.off_policy_states == "batch"
-                s_off = b["obs"][mb] if on_policy else replay_states()
-                a_off = agent.actor_mean(s_off)
-                if args.q_bar == "sample":  # a = mu + sigma eps: the gradient reaches sigma too
-                    a_off = a_off + agent.actor_logstd.exp() * torch.randn_like(a_off)
-                off_term = -qf(s_off, a_off).mean()  # -Q_bar_w(s), s ~ beta (eq. 10)
-                pg_loss = pg_loss + off_weight * off_scale * off_term
-            v_loss = 0.5 * ((agent.get_value(b["obs"][mb]) - b["returns"][mb]) ** 2).mean()
-            loss = pg_loss + args.vf_coef * v_loss
-            optimizer.zero_grad()
-            loss.backward()
-            nn.utils.clip_grad_norm_(agent.actor_parameters(), args.max_grad_norm)  # policy and
-            nn.utils.clip_grad_norm_(agent.critic.parameters(), args.max_grad_norm)  # V apart
-            optimizer.step()
-        epochs_run = epoch + 1
-        if args.kl_early_stop is not None:
-            with torch.no_grad():
-                d = kl_divergence(pi_old, agent.dist(b["obs"])).sum(-1).mean().item()
-            if d > args.kl_early_stop * args.kl_target:
-                break
-    with torch.no_grad():
-        pi = agent.dist(b["obs"])
-        d = (
-            kl_divergence(pi_old, pi).sum(-1).mean().item()
-        )  # d: mean KL[pi_old || pi] of the update
-        entropy = pi.entropy().sum(-1).mean().item()
-    stats = {"policy_loss": pg_loss.item(), "value_loss": v_loss.item(), "approx_kl": d,
-             "beta": beta, "epochs": epochs_run, "entropy": entropy,
-             "on_policy_term": on_term.item(), "off_policy_term": off_term.item(),
-             "signal_std": signal_std.item()}  # fmt: skip
-    if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
-        beta /= 2
-    elif d > args.kl_target * 1.5:
-        beta *= 2
-    beta = min(max(beta, BETA_MIN), BETA_MAX)
-    return beta, stats
 
 
 # DIAGNOSTICS: what the mixture does (logged as ipg/*; none of it changes the update)
@@ -657,65 +459,85 @@ def gradient_diagnostics(
     }
 
 
-def evaluate(
-    agent: Agent,
-    norm: InputNormalizer,
-    env_id: str,
-    seeds: list[int],
-    video_dir: str | None = None,
-    stochastic: bool = False,
-):
-    """Run the deterministic policy a = mu_theta(s) (``stochastic``: a ~ pi_theta), one episode
-    per reset seed in ``seeds``, with frozen normaliser statistics.
+# ALGO LOGIC: the IPG update (eq. 10) on the PPO-KL surrogate (eq. 5)
+def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args,
+               qf: QNetwork | None = None, replay_states: Callable | None = None):  # fmt: skip
+    """``update_epochs`` passes of minibatch Adam on the interpolated loss with the KL penalty,
+    then the beta rule.
 
-    Returns the episodic returns and, on goal tasks, the successes (``is_success`` at the end).
+    ``b`` is ``make_batch``'s batch, with ``cv`` (A_bar) when ``args.use_cv``. The off-policy
+    term's states s ~ beta are the minibatch's own (``--off-policy-states batch``) or a fresh
+    draw ``replay_states()`` from the replay buffer for each minibatch. With nu = 0 and no
+    control variate this is exactly ``ppo_kl_update``. Returns the new beta and the statistics.
     """
-    env = make_env(env_id, video_dir)()
-    returns, successes = [], []
-    for seed in seeds:
-        obs, _ = env.reset(seed=seed)
-        done = False
-        while not done:
+    batch_size = b["obs"].shape[0]
+    minibatch_size = batch_size // args.num_minibatches
+    adv = b["advantages"] - b["cv"] if args.use_cv else b["advantages"]  # A_hat (- A_bar)
+    off_scale, signal_std = 1.0, adv.std()  # on the raw scale
+    if args.norm_adv:
+        adv = (adv - adv.mean()) / (signal_std + 1e-8)
+        if args.normalization == "unbiased":
+            off_scale = 1.0 / (signal_std.item() + 1e-8)  # the same 1/sigma on both terms
+    off_weight = 1.0 if args.use_cv else args.nu  # b = 1 with the control variate
+    use_off_policy = qf is not None and off_weight > 0
+    pi_old = Normal(b["mean"], b["std"])
+    actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
+    on_term, off_term = torch.zeros(()), torch.zeros(())
+    for epoch in range(args.update_epochs):
+        # shuffle once per epoch: the minibatches are then slices (views), not gathers
+        perm = torch.randperm(batch_size)
+        keys = ("obs", "actions", "logprobs", "mean", "std", "returns")
+        shuffled = {key: b[key][perm] for key in keys} | {"adv": adv[perm]}
+        for start in range(0, batch_size, minibatch_size):
+            mb = {key: v[start : start + minibatch_size] for key, v in shuffled.items()}
+            pi = agent.dist(mb["obs"])
+            kl = kl_divergence(Normal(mb["mean"], mb["std"]), pi).sum(-1).mean()  # analytic
+            pg_loss = beta * kl
+            if args.nu < 1:  # the likelihood-ratio part, eq. 5's (weight 0 at nu = 1: skipped)
+                ratio = (pi.log_prob(mb["actions"]).sum(-1) - mb["logprobs"]).exp()  # r_t(theta)
+                on_term = -(ratio * mb["adv"]).mean()
+                pg_loss = pg_loss + (1.0 - args.nu) * on_term
+            if use_off_policy:
+                s_off = mb["obs"] if args.off_policy_states == "batch" else replay_states()
+                a_off = agent.actor_mean(s_off)
+                if args.q_bar == "sample":  # a = mu + sigma eps: the gradient reaches sigma too
+                    a_off = a_off + agent.actor_logstd.exp() * torch.randn_like(a_off)
+                off_term = -qf(s_off, a_off).mean()  # -Q_bar_w(s), s ~ beta (eq. 10)
+                pg_loss = pg_loss + off_weight * off_scale * off_term
+            v_loss = 0.5 * ((agent.get_value(mb["obs"]) - mb["returns"]) ** 2).mean()
+            optimizer.zero_grad()
+            (pg_loss + args.vf_coef * v_loss).backward()
+            nn.utils.clip_grad_norm_(actor_params, args.max_grad_norm)  # policy and
+            nn.utils.clip_grad_norm_(critic_params, args.max_grad_norm)  # V apart
+            optimizer.step()
+        if args.kl_early_stop is not None:
             with torch.no_grad():
-                x = norm.raw(obs)[None]
-                action = (agent.dist(x).sample() if stochastic else agent.actor_mean(x)).numpy()[0]
-            obs, _, terminated, truncated, info = env.step(
-                np.clip(action, env.action_space.low, env.action_space.high)
-            )
-            done = terminated or truncated
-        returns.append(info["episode"]["r"])
-        if "is_success" in info:
-            successes.append(info["is_success"])
-    env.close()
-    return np.array(returns, np.float64), np.array(successes, np.float64)
+                d = kl_divergence(pi_old, agent.dist(b["obs"])).sum(-1).mean().item()
+            if d > args.kl_early_stop * args.kl_target:
+                break
+    with torch.no_grad():
+        pi = agent.dist(b["obs"])
+        d = kl_divergence(pi_old, pi).sum(-1).mean().item()  # d: mean KL[pi_old || pi]
+        entropy = pi.entropy().sum(-1).mean().item()
+    stats = {"losses/policy_loss": pg_loss.item(), "losses/value_loss": v_loss.item(),
+             "losses/approx_kl": d, "losses/beta": beta, "losses/epochs": epoch + 1,
+             "charts/policy_entropy": entropy, "ipg/signal_std": signal_std.item(),
+             "ipg/on_policy_term": on_term.item(),
+             "ipg/off_policy_term": off_term.item()}  # fmt: skip
+    if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
+        beta /= 2
+    elif d > args.kl_target * 1.5:
+        beta *= 2
+    return min(max(beta, BETA_MIN), BETA_MAX), stats
 
 
 if __name__ == "__main__":
     args = cli.parse_args(Args)
     check_args(args, sys.argv[1:])
     batch_size = args.num_envs * args.num_steps
-    minibatch_size = batch_size // args.num_minibatches
-    minibatch_steps = args.update_epochs * len(range(0, batch_size, minibatch_size))  # per update
+    minibatch_steps = args.update_epochs * args.num_minibatches  # per update
     num_iterations = args.total_timesteps // batch_size
-    resumed = None  # the saved state of a run to go on with (--resume)
-    if args.resume:
-        try:
-            resumed = checkpoint.load_resume_state(args.resume, args)
-        except checkpoint.CheckpointError as e:
-            cli.fail(str(e))
-        run_dir, writer = cli.resume_run(args.resume, resumed["global_step"])
-    else:
-        run_dir, writer = cli.start_run(args)
-
-    # TRY NOT TO MODIFY: seeding, one independent stream per use (common/seeding.py)
-    streams = seeding.streams(args.seed, args.num_envs)
-    random.seed(streams.global_seed)
-    np.random.seed(streams.global_seed)
-    torch.manual_seed(streams.torch_seed)
-    diagnostics_rng = np.random.default_rng(streams.diagnostics_seed)  # their own stream
-    diagnostics_generator = torch.Generator().manual_seed(streams.diagnostics_seed)
-    torch.backends.cudnn.deterministic = args.torch_deterministic
-    torch.set_num_threads(args.torch_threads)
+    run = Run(args)  # TRY NOT TO MODIFY: run folder, TensorBoard, seeding (common/run.py)
 
     # ENV SETUP
     envs = gym.vector.SyncVectorEnv(
@@ -723,216 +545,99 @@ if __name__ == "__main__":
         autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
     )
     assert envs.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
-    assert isinstance(envs.single_action_space, gym.spaces.Box), "only continuous actions"
     space = envs.single_observation_space
-    goal_task = isinstance(space, gym.spaces.Dict)
-    obs_dim = space["observation"].shape[0] if goal_task else space.shape[0]
-    goal_dim = space["desired_goal"].shape[0] if goal_task else 0
+    goal_dim = space["desired_goal"].shape[0] if isinstance(space, gym.spaces.Dict) else 0
+    obs_dim = space["observation"].shape[0] if goal_dim else space.shape[0]
     act_dim = envs.single_action_space.shape[0]
-    envs.single_action_space.seed(streams.action_space_seed)
+    envs.single_action_space.seed(run.streams.action_space_seed)
 
-    # ALGO LOGIC: networks, optimisers, normalisers, replay
-    norm = InputNormalizer(obs_dim, goal_dim)
+    # ALGO LOGIC: networks, optimisers, normalisers, replay (with HER on goal tasks)
     agent = Agent(obs_dim + goal_dim, act_dim, hidden=args.hidden, init_log_std=args.init_log_std)
     optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
+    norm = InputNormalizer(obs_dim, goal_dim)
     low, high = envs.single_action_space.low, envs.single_action_space.high
     qf = QNetwork(obs_dim + goal_dim, act_dim, hidden=args.hidden, low=low, high=high)
     qf_target = copy.deepcopy(qf)
     q_optimizer = optim.Adam(qf.parameters(), lr=args.critic_learning_rate, fused=True)
+    rb = ReplayBuffer(
+        args.buffer_size, args.num_envs, obs_dim, act_dim, seed=run.streams.replay_seed
+    )
     q_range = None  # the returns the reward allows, for clipping the critic's targets
-    if goal_task:  # hindsight relabelling needs the task's reward function
+    if goal_dim:  # hindsight relabelling needs the task's reward function
         reward_env = gym.make(args.env_id)  # gymnasium 1.x wrappers do not forward attributes
         compute_reward = lambda ag, g: reward_env.unwrapped.compute_reward(ag, g, None)
-        if args.clip_q_target:
-            q_range = sparse_return_range(compute_reward, goal_dim, args.gamma)
-        rb = HerReplayBuffer(
-            args.buffer_size, args.num_envs, obs_dim, act_dim, goal_dim,
-            compute_reward=compute_reward,
-            n_sampled_goal=args.her_n_sampled_goal if args.her else 0,
-            goal_selection_strategy=args.her_goal_selection_strategy, seed=streams.replay_seed,
-        )  # fmt: skip
-    else:
-        rb = ReplayBuffer(
-            args.buffer_size, args.num_envs, obs_dim, act_dim, seed=streams.replay_seed
+        q_range = (
+            sparse_return_range(compute_reward, goal_dim, args.gamma)
+            if args.clip_q_target
+            else None
         )
-    ret_rms, running_return = RunningMeanStd(()), np.zeros(args.num_envs)  # reward scaling
-    beta = args.beta_init
+        rb = HerReplayBuffer(
+            args.buffer_size, args.num_envs, obs_dim, act_dim, goal_dim, compute_reward,
+            n_sampled_goal=args.her_n_sampled_goal if args.her else 0,
+            goal_selection_strategy=args.her_goal_selection_strategy, seed=run.streams.replay_seed,
+        )  # fmt: skip
+    reward_scaler = RewardScaler(args.num_envs, args.gamma)
+    raw_obs, beta = run.start(
+        envs, model=dict(agent=agent, normalizer=norm, qf=qf, qf_target=qf_target),
+        training=dict(optimizer=optimizer, q_optimizer=q_optimizer, rb=rb,
+                      reward_scaler=reward_scaler),
+        beta=args.beta_init,
+    )  # fmt: skip
 
-    # TRY NOT TO MODIFY: start the game
-    global_step, train_time, last_eval, last_save, exit_code = 0, 0.0, 0, 0, 0
-    eval_seeds, eval_returns, eval_success = [], np.zeros(0), np.zeros(0)
-    model_path = os.path.join(run_dir, "model.pt")
-    save = lambda: checkpoint.save(
-        model_path,
-        script=SCRIPT,
-        args=args,
-        last_eval_seeds=eval_seeds,
-        agent=agent,
-        normalizer=norm,
-        qf=qf,
-        qf_target=qf_target,
-    )
-    evaluator = BackgroundEvaluator(args.eval_workers)
-    progress, latest = cli.Progress(args.total_timesteps), ""
-    recent_success = []  # is_success of the last 100 training episodes (goal tasks)
-    # everything --resume-freq saves, besides the counters and the global random states
-    parts = dict(agent=agent, optimizer=optimizer, qf=qf, qf_target=qf_target,
-                 q_optimizer=q_optimizer, norm=norm, ret_rms=ret_rms, rb=rb,
-                 eval_rng=streams.eval_rng, diagnostics_rng=diagnostics_rng,
-                 diagnostics_generator=diagnostics_generator)  # fmt: skip
-    first_iteration, last_resume, reset_seeds = 1, 0, streams.env_seeds
-    if resumed:
-        for name, part in parts.items():
-            checkpoint.restore(part, resumed[name])
-        checkpoint.set_rng_states(resumed["rng"])
-        beta, iteration, global_step = resumed["beta"], resumed["iteration"], resumed["global_step"]
-        train_time, last_eval = resumed["train_time"], resumed["last_eval"]
-        last_save, eval_seeds = resumed["last_save"], resumed["eval_seeds"]
-        recent_success = resumed["recent_success"]
-        first_iteration, last_resume = iteration + 1, global_step
-        rb.end_episodes()  # the envs restart with new episodes: the unfinished ones end here
-        reset_seeds = seeding.resume_env_seeds(args.seed, args.num_envs, global_step)
-    raw_obs, _ = envs.reset(seed=reset_seeds)
-    try:
-        for iteration in range(first_iteration, num_iterations + 1):
-            t0 = time.time()
+    with run:  # TRY NOT TO MODIFY: Ctrl-C, kill or a NaN end the run cleanly
+        for iteration in run.iterations(num_iterations):
             if args.anneal_lr:
                 frac = 1.0 - (iteration - 1.0) / num_iterations
                 optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
             # ALGO LOGIC: rollout
             ro, raw_obs, episodes = collect_rollout(envs, agent, norm, raw_obs, args.num_steps, rb)
-
-            # TRY NOT TO MODIFY: record rewards for plotting purposes
-            for t, _, episodic_return, length, success in episodes:
-                step = global_step + (t + 1) * args.num_envs
-                writer.add_scalar("charts/episodic_return", episodic_return, step)
-                writer.add_scalar("charts/episodic_length", length, step)
-                if success is not None:
-                    recent_success = (recent_success + [success])[-100:]
-                    writer.add_scalar("charts/success_rate", np.mean(recent_success), step)
-            global_step += batch_size
+            global_step = run.record_episodes(episodes)
 
             # ALGO LOGIC: one reward scale for GAE and the critic
             reward_scale = 1.0
             if args.norm_reward:
-                ro["rewards"] = scale_rewards(
-                    ro["rewards"], ro["episode_ends"], ret_rms, running_return, args.gamma
-                )
-                reward_scale = float(1.0 / np.sqrt(ret_rms.var + 1e-8))
+                ro["rewards"] = reward_scaler(ro["rewards"], ro["episode_ends"])
+                reward_scale = 1.0 / reward_scaler.std()
 
             # ALGO LOGIC: the critic first (eq. 6-7), so that A_bar and the off-policy term see
-            # the new data
+            # the new data; targets clipped to the returns the reward allows (scaled)
             learning = global_step >= args.learning_starts and rb.num_sampleable() > 0
             if learning and args.critic_steps > 0:
-                batches = sample_replay(
+                target_range = None if q_range is None else (q_range[0] * reward_scale, 0.0)
+                for data in sample_replay(
                     rb, norm, reward_scale, args.critic_batch_size, count=args.critic_steps
-                )
-                for data in batches:
+                ):
                     critic_loss, q_values = critic_step(
-                        qf, qf_target, q_optimizer, agent, data,
-                        gamma=args.gamma, tau=args.tau,
-                        target_range=None if q_range is None else (q_range[0] * reward_scale, 0.0),
-                    )  # fmt: skip
-                writer.add_scalar("losses/critic_loss", critic_loss, global_step)
-                writer.add_scalar("losses/q_values", q_values, global_step)
+                        qf, qf_target, q_optimizer, agent, data, args.gamma, args.tau, target_range
+                    )
+                run.log({"losses/critic_loss": critic_loss, "losses/q_values": q_values})
 
             # ALGO LOGIC: advantages (eq. 3-4) and the control variate (eq. 9)
-            b = make_batch(agent, ro, norm.raw(raw_obs), args.gamma, args.gae_lambda)
+            b = make_batch(agent, ro, norm(raw_obs), args.gamma, args.gae_lambda)
             if args.use_cv:
                 b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
+                run.log({"ipg/cv_mean": b["cv"].mean().item()})
 
             # DIAGNOSTICS: gradient norms and variances before the update (ipg/*)
-            diagnostics = {}
-            every = args.diagnostics_every
-            if every > 0 and (iteration - 1) % every == 0 and learning:
+            if (
+                args.diagnostics_every
+                and (iteration - 1) % args.diagnostics_every == 0
+                and learning
+            ):
                 off_states = b["obs"]
                 if args.off_policy_states == "replay":
                     off_states = sample_replay(
-                        rb, norm, 1.0, args.off_policy_batch_size, rng=diagnostics_rng
+                        rb, norm, 1.0, args.off_policy_batch_size, rng=run.diagnostics_rng
                     )[0]["obs"]
                 diagnostics = gradient_diagnostics(
-                    agent, qf, b, args, off_states, generator=diagnostics_generator
+                    agent, qf, b, args, off_states, generator=run.diagnostics_generator
                 )
+                run.log({f"ipg/{key}": value for key, value in diagnostics.items()})
 
             # ALGO LOGIC: the IPG update (eq. 10 on eq. 5)
             states = replay_state_batches(rb, norm, args.off_policy_batch_size, minibatch_steps)
-            replay_states = functools.partial(next, states)
-            beta, stats = ipg_update(
-                agent, optimizer, b, beta, args, qf=qf if learning else None,
-                replay_states=replay_states,
-            )  # fmt: skip
-            if not all(np.isfinite(v) for v in stats.values()):
-                raise FloatingPointError(
-                    f"a loss became NaN or infinite at global step {global_step}: {stats}"
-                )
-            train_time += time.time() - t0
-
-            # TRY NOT TO MODIFY: record losses for plotting purposes
-            writer.add_scalar("charts/learning_rate", optimizer.param_groups[0]["lr"], global_step)
-            writer.add_scalar("charts/policy_entropy", stats["entropy"], global_step)
-            writer.add_scalar("charts/SPS", int(global_step / train_time), global_step)
-            for key in ("policy_loss", "value_loss", "approx_kl", "beta"):
-                writer.add_scalar(f"losses/{key}", stats[key], global_step)
-            writer.add_scalar("ipg/nu", args.nu, global_step)
-            writer.add_scalar("ipg/on_policy_term", stats["on_policy_term"], global_step)
-            writer.add_scalar("ipg/off_policy_term", stats["off_policy_term"], global_step)
-            writer.add_scalar("ipg/signal_std", stats["signal_std"], global_step)
-            if args.use_cv:
-                writer.add_scalar("ipg/cv_mean", b["cv"].mean().item(), global_step)
-            for key, value in diagnostics.items():
-                writer.add_scalar(f"ipg/{key}", value, global_step)
-
-            # TRY NOT TO MODIFY: evaluate the deterministic policy (a snapshot of it, in the
-            # background with --eval-workers 1: training goes on meanwhile)
-            due = args.eval_freq > 0 and global_step - last_eval >= args.eval_freq
-            resume_due = args.resume_freq > 0 and (
-                global_step - last_resume >= args.resume_freq or iteration == num_iterations
-            )
-            if iteration == num_iterations or due:
-                last_eval, eval_seeds = global_step, streams.eval_seeds(args.eval_episodes)
-                video_dir = os.path.join(run_dir, "videos", f"step{global_step}")
-                evaluator.submit(
-                    global_step, evaluate, agent, norm, args.env_id, eval_seeds,
-                    video_dir if args.capture_video else None,
-                )  # fmt: skip
-            for step, (eval_returns, eval_success) in evaluator.finished(
-                wait=iteration == num_iterations or resume_due  # resume.pt: no evaluation lost
-            ):
-                writer.add_scalar("eval/episodic_return", eval_returns.mean(), step)
-                message = f"step={step} eval_return={eval_returns.mean():.1f}"
-                if len(eval_success):
-                    writer.add_scalar("eval/success_rate", eval_success.mean(), step)
-                    message += f" eval_success={eval_success.mean():.2f}"
-                progress.print(f"{message} SPS={int(global_step / train_time)}")
-            if args.save_model and args.save_freq and global_step - last_save >= args.save_freq:
-                last_save = global_step
-                save()
-            if resume_due:
-                last_resume = global_step
-                checkpoint.save_resume_state(
-                    run_dir, args, **parts, rng=checkpoint.rng_states(), beta=beta,
-                    iteration=iteration, global_step=global_step, train_time=train_time,
-                    last_eval=last_eval, last_save=last_save, recent_success=recent_success,
-                    eval_seeds=eval_seeds,
-                )  # fmt: skip
-            if episodes:  # the latest training figure: success on goal tasks, else return
-                latest = f"success {np.mean(recent_success):.2f}" if recent_success else ""
-                latest = latest or f"return {episodes[-1][2]:.1f}"
-            progress.update(global_step, int(global_step / train_time), latest)
-    except KeyboardInterrupt as interrupt:
-        message = f"interrupted at global step {global_step}; logs are kept in {run_dir}"
-        progress.print(message, file=sys.stderr)
-        exit_code = cli.exit_code(interrupt)
-    except FloatingPointError as e:
-        print(f"error: {e}", file=sys.stderr)
-        exit_code = 1
-    finally:
-        if args.save_model:
-            save()
-            progress.print(f"model saved to {model_path}")
-        evaluator.close()
-        envs.close()
-        writer.close()
-    progress.close(global_step, eval_returns, eval_success)
-    sys.exit(exit_code)
+            beta, stats = ipg_update(agent, optimizer, b, beta, args, qf if learning else None,
+                                     functools.partial(next, states))  # fmt: skip
+            stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"], "ipg/nu": args.nu}
+            run.end_iteration(stats, beta=beta)  # TRY NOT TO MODIFY: log, evaluate, save

@@ -2,10 +2,13 @@
 
     python benchmarks/report.py --suite paper                      # read benchmarks/runs/paper
     python benchmarks/report.py --suite paper --from-export        # redraw from the export
+    python benchmarks/report.py --suite paper --page docs/results.md   # and into the docs site
 
 Writes into ``--results-dir`` (default ``benchmarks/results/{suite}``): ``curves.json`` (a compact
 export of every run's curves, enough to redraw everything), ``results.md`` (the table and how
-it was measured) and PNG figures in the shape of the paper's Figures 3-5.
+it was measured) and PNG figures in the shape of the paper's Figures 3-5. With ``--page``, the
+table and the figures go into that Markdown page of the docs site between its markers, and the
+figures into ``img/{suite}/`` beside the page (the site serves only files under ``docs/``).
 """
 
 import json
@@ -59,8 +62,9 @@ class Args:
     """add the groups of this earlier curves.json that the runs lack, marked as earlier code's"""
     merge_label: str = "earlier code"
     """what the merged groups were measured on (shown in the table's note)"""
-    readme: str = ""
-    """also write table and figures into this README, between <!-- results:{suite}:start/end -->"""
+    page: str = ""
+    """also write table and figures into this Markdown page (docs/results.md), between
+    <!-- results:{suite}:start/end -->; the figures then go into img/{suite}/ beside the page"""
     keep_export: bool = False
     """also keep the runs of the results folder's own curves.json that the run folders lack (run
     folders are not committed: on a new machine, the runs of earlier sessions live only in the
@@ -340,8 +344,9 @@ def mean_and_interval(values: np.ndarray, rng, digits: int) -> str:
 
 def finalists_table(groups: dict, rng, first_fresh: int = FRESH_SEED) -> str:
     """The finalists on their fresh seeds only (seeds >= ``first_fresh``, none tuned on): per
-    variant, the mean and 95% bootstrap interval over those seeds of the evaluation at an early
-    budget and at the end, and of the final training figure. Empty if no variant has two."""
+    variant, the mean and 95% bootstrap interval over those seeds of the last evaluation at or
+    before an early budget (labelled with the step it was at) and at the end, and of the final
+    training figure. Empty if no variant has two."""
     rows = ["| task | algorithm | fresh seeds | eval @ early budget | last eval "
             "| final (training) |", "| --- | --- | --- | --- | --- | --- |"]  # fmt: skip
     for group in sorted(groups):
@@ -355,7 +360,7 @@ def finalists_table(groups: dict, rng, first_fresh: int = FRESH_SEED) -> str:
             ("eval/episodic_return", 100_000, 0)  # fmt: skip
         cells = [
             f"{len(runs)} ({seeds[0]}-{seeds[-1]})",
-            f"@ {early:,}: "
+            f"@ {steps_at(runs, tag, early)}: "
             + mean_and_interval([value_at(r, tag, early) for r in runs], rng, digits),
             mean_and_interval([r[tag][-1][1] for r in runs], rng, digits),
             mean_and_interval([r["final"] for r in runs], rng, digits),
@@ -469,6 +474,16 @@ def value_at(run: dict, tag: str, budget: float) -> float:
     return ([v for s, v in run.get(tag, []) if s <= budget] or [np.nan])[-1]
 
 
+def steps_at(runs: list, tag: str, budget: float) -> str:
+    """The step(s) at which ``value_at`` finds its values: "81,920" (Hopper evaluates every
+    20,480 steps, so "at 100,000" is the evaluation at 81,920), or a range if runs differ."""
+    steps = {([s for s, _ in r.get(tag, []) if s <= budget] or [None])[-1] for r in runs}
+    steps = sorted(s for s in steps if s is not None)
+    if not steps:
+        return "-"
+    return f"{steps[0]:,}" if len(steps) == 1 else f"{steps[0]:,}-{steps[-1]:,}"
+
+
 def mixing_variant(group: str) -> tuple[float, str, str] | None:
     """``ipg_her_nu0.2_b100_cv__FetchReach-v4`` -> (0.2, "b100_cv", "FetchReach-v4"); None for
     a run without nu (Q-Prop)."""
@@ -493,7 +508,11 @@ def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> 
         tag = "eval/success_rate" if goal else "eval/episodic_return"
         first = early if goal else 100_000  # the early budget, in steps
         fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-        for ax, budget, title in ((axes[0], np.inf, "final"), (axes[1], first, f"@ {first:,}")):
+        evaluated = steps_at([r for g in variants.values() for rs in g.values() for r in rs],
+                             tag, first)  # fmt: skip
+        early_title = f"{env_id}: evaluation at {evaluated} (the last by {first:,} steps)"
+        for ax, budget, label, title in ((axes[0], np.inf, "final", env_id),
+                                         (axes[1], first, "early", early_title)):  # fmt: skip
             for variant in sorted(variants):
                 nus = sorted(variants[variant])
                 values = [np.array([value_at(r, tag, budget) for r in variants[variant][nu]])
@@ -506,8 +525,8 @@ def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> 
                 ax.errorbar(nus, means, yerr=[np.subtract(means, lo), np.subtract(hi, means)],
                             marker="o", capsize=3, label=f"{variant} ({seeds}+ seeds)")  # fmt: skip
             ax.set_xlabel("nu")
-            ax.set_ylabel(f"{tag.split('/')[1].replace('_', ' ')} (eval, {title})")
-            ax.set_title(env_id)
+            ax.set_ylabel(f"{tag.split('/')[1].replace('_', ' ')} (eval, {label})")
+            ax.set_title(title, fontsize=10)
             ax.grid(alpha=0.3)
             ax.legend(fontsize=8)
         fig.tight_layout()
@@ -539,19 +558,21 @@ def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> 
 
 
 def main(args: Args) -> int:
-    # a bad --readme is caught before anything is read or written
-    readme = Path(args.readme)
+    # a bad --page is caught before anything is read or written
+    page = Path(args.page)
     start, end = f"<!-- results:{args.suite}:start -->", f"<!-- results:{args.suite}:end -->"
-    if args.readme and not readme.is_file():
-        print(f"error: --readme {readme}: no such file; name an existing README holding the "
-              f"markers {start} and {end}, or leave out --readme", file=sys.stderr)  # fmt: skip
+    if args.page and not page.is_file():
+        print(f"error: --page {page}: no such file; name an existing Markdown page holding the "
+              f"markers {start} and {end}, or leave out --page", file=sys.stderr)  # fmt: skip
         return 2
-    if args.readme and not readme.read_text().count(start) == readme.read_text().count(end) == 1:
-        print(f"error: --readme {readme} needs the markers {start} and {end}, once each, "
+    if args.page and not page.read_text().count(start) == page.read_text().count(end) == 1:
+        print(f"error: --page {page} needs the markers {start} and {end}, once each, "
               "around the place to write; add them", file=sys.stderr)  # fmt: skip
         return 2
     results = Path(args.results_dir or f"benchmarks/results/{args.suite}")
     results.mkdir(parents=True, exist_ok=True)
+    figures_dir = page.parent / "img" / args.suite if args.page else results  # the site's files
+    figures_dir.mkdir(parents=True, exist_ok=True)
     if args.from_export:
         if not (results / "curves.json").is_file():
             print(f"error: no export {results / 'curves.json'}; run report.py without "
@@ -582,9 +603,9 @@ def main(args: Args) -> int:
     rng = np.random.default_rng(args.seed)
 
     if args.suite in ("paper", "quick"):  # quick has the paper's shape
-        figures = draw_paper_figures(groups, results, rng)
+        figures = draw_paper_figures(groups, figures_dir, rng)
     elif args.suite == "mixing":
-        figures = draw_mixing_figures(groups, results, rng)
+        figures = draw_mixing_figures(groups, figures_dir, rng)
     else:  # one figure per task with every variant of the suite
         figures = []
         for env_id in sorted({g.split("__")[1] for g in groups}):
@@ -596,7 +617,7 @@ def main(args: Args) -> int:
                 plot(ax, groups, names, env_id, "charts/episodic_return", rng, smooth=20)
             fig.tight_layout()
             figures.append(f"{args.suite}_{env_id}.png")
-            fig.savefig(results / figures[-1], dpi=100)
+            fig.savefig(figures_dir / figures[-1], dpi=100)
     plt.close("all")
 
     episodes = {}  # evaluation episodes per task, from the runs' own hyperparameters
@@ -643,8 +664,9 @@ def main(args: Args) -> int:
         success_block += (
             f"{finalists}\n\nThe finalists on fresh seeds only (seeds {FRESH_SEED} and up; the "
             "screen's seeds are pooled in the rows above): mean over seeds [95% bootstrap "
-            "interval of the mean]. Early budget: 2,500 steps on FetchReach, 100,000 on Hopper; "
-            "*final (training)*: as *final* above.\n\n"
+            "interval of the mean]. Early budget: the last evaluation at or before 2,500 steps "
+            "on FetchReach, 100,000 on Hopper, labelled with the step it was at (Hopper "
+            "evaluates every 20,480 steps); *final (training)*: as *final* above.\n\n"
         )
     diagnostics = diagnostics_table(groups)
     diagnostics_block = ""
@@ -675,12 +697,12 @@ episodes, FetchReach returns over 10. The success table gives, for goal tasks, t
 """
     (results / "results.md").write_text(text)
     print(text)
-    if args.readme:
-        before, rest = readme.read_text().split(start)
-        images = "\n".join(f"![{f}]({results.as_posix()}/{f})" for f in figures)
+    if args.page:
+        before, rest = page.read_text().split(start)
+        images = "\n".join(f"![{f}](img/{args.suite}/{f})" for f in figures)
         note = "<!-- written by benchmarks/report.py: do not edit by hand -->"
         block = f"{start}\n{note}\n{text}\n{images}\n{end}"
-        readme.write_text(before + block + rest.split(end)[1])
+        page.write_text(before + block + rest.split(end)[1])
     return 0
 
 

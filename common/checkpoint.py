@@ -1,47 +1,75 @@
-"""Checkpoints that hold everything needed to evaluate a policy exactly.
+"""Model and resume files: tensors and plain values only, read without running any code.
 
-A checkpoint is one ``torch.save``'d dict: ``format_version``, the ``script`` that wrote it, its
-``args`` (which task, which sizes), the ``state_dict()`` of every part the script passes (the
-agent, the observation/goal normaliser, the critic and its target), and the reset seeds of the
-last evaluation, so that ``python -m common.evaluate`` can replay it episode for episode.
-Writing goes to a temporary file renamed over the old one: a save interrupted half-way leaves the
-previous checkpoint intact.
+``model.pt`` is one ``torch.save``'d dict: ``format_version``, the run's ``args`` (a dict), the
+reset seeds of its last evaluation (so that ``python -m common.evaluate`` can replay it), and the
+``state_dict()`` of every part of the model (``agent``, its input ``normalizer`` and any critic),
+with ``normalizer_class`` naming the normaliser: all a policy needs to be rebuilt, without the
+script that trained it. ``resume.pt`` adds what a run needs to go on (optimisers, replay, random
+states, counters), read by ``--resume``.
 
-A run started with ``--resume-freq`` also writes ``resume.pt`` into its run folder: everything it
-needs to go on (optimisers, replay buffer, random states, counters), read by ``--resume``.
+Loading a pickle can run any code it names (a shared ``model.pt`` could). Both files are read
+with ``torch.load(weights_only=True)``, which builds tensors and plain Python values only and
+refuses anything else; numpy arrays are stored as tensors (``{"ndarray": tensor}``) for that.
+Writing goes to a temporary file renamed over the old one: an interrupted save leaves the
+previous file intact.
 """
 
 import dataclasses
 import os
 import random
+import sys
 
 import numpy as np
 import torch
 
-FORMAT_VERSION = 1
-SCRIPTS = ("ppo_kl", "qprop_ppo", "ipg_her")
+FORMAT_VERSION = 2
+SCRIPT = os.path.basename(sys.argv[0])  # the script running, e.g. ipg_her.py
+RESUME_FILE = "resume.pt"
+RESUMABLE_ARGS = ("resume", "resume_freq", "total_timesteps", "eval_workers")  # may change
 
 
 class CheckpointError(ValueError):
     """A file that is not one of our checkpoints, or of a format this code cannot read."""
 
 
-def save(path: str, script: str, args, last_eval_seeds: list[int], **parts) -> None:
-    state = {"format_version": FORMAT_VERSION, "script": script, "args": dict(vars(args)),
-             "last_eval_seeds": list(last_eval_seeds)}  # fmt: skip
-    state |= {name: part.state_dict() for name, part in parts.items()}
-    _write(state, path)
+def plain(value):
+    """``value`` with numpy arrays and scalars turned into what ``weights_only`` loads."""
+    if isinstance(value, dict):
+        return {k: plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(plain(v) for v in value)
+    if isinstance(value, np.ndarray):
+        return {"ndarray": torch.from_numpy(np.ascontiguousarray(value))}
+    return value.item() if isinstance(value, np.generic) else value
 
 
-def _write(state: dict, path: str) -> None:
+def unplain(value):
+    """The inverse of ``plain``."""
+    if isinstance(value, dict):
+        if value.keys() == {"ndarray"}:
+            return value["ndarray"].numpy()
+        return {k: unplain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(unplain(v) for v in value)
+    return value
+
+
+def state(model: dict) -> dict:
+    """The model's parts as state dicts, and the class of its normaliser."""
+    return {name: part.state_dict() for name, part in model.items()} | {
+        "normalizer_class": type(model["normalizer"]).__name__
+    }
+
+
+def save(path: str, args, last_eval_seeds: list[int], **model) -> None:
+    _write({"format_version": FORMAT_VERSION, "args": dict(vars(args)),
+            "last_eval_seeds": list(last_eval_seeds), **state(model)}, path)  # fmt: skip
+
+
+def _write(content: dict, path: str) -> None:
     tmp = f"{path}.tmp"
-    torch.save(state, tmp)
+    torch.save(plain(content), tmp)
     os.replace(tmp, path)  # atomic on POSIX: readers see the old file or the new one
-
-
-# Resuming: everything a run needs to go on, not only to evaluate
-RESUME_FILE = "resume.pt"
-RESUMABLE_ARGS = ("resume", "resume_freq", "total_timesteps", "eval_workers")  # may change
 
 
 def rng_states() -> dict:
@@ -56,10 +84,9 @@ def set_rng_states(states: dict) -> None:
     torch.set_rng_state(states["torch"])
 
 
-def save_resume_state(run_dir: str, args, **state) -> None:
-    """Write ``run_dir/resume.pt``: ``args`` and ``state``, where anything with a ``state_dict``
-    (networks, optimisers, normalisers, the replay buffer) is stored as its state dict and a
-    numpy ``Generator`` as its bit generator's state."""
+def save_resume_state(run_dir: str, args, **content) -> None:
+    """Write ``run_dir/resume.pt``: ``args`` and ``content``, where anything with a
+    ``state_dict`` is stored as it and a generator as its state."""
 
     def saved(value):
         if hasattr(value, "state_dict"):
@@ -68,22 +95,25 @@ def save_resume_state(run_dir: str, args, **state) -> None:
             return value.get_state()
         return value.bit_generator.state if isinstance(value, np.random.Generator) else value
 
-    state = {key: saved(value) for key, value in state.items()}
-    _write({"format_version": FORMAT_VERSION, "args": dict(vars(args)), **state},
-           os.path.join(run_dir, RESUME_FILE))  # fmt: skip
+    content = {key: saved(value) for key, value in content.items()}
+    _write({"format_version": FORMAT_VERSION, "script": SCRIPT, "args": dict(vars(args)),
+            **content}, os.path.join(run_dir, RESUME_FILE))  # fmt: skip
 
 
 def load_resume_state(run_dir: str, args) -> dict:
-    """The state ``save_resume_state`` wrote in ``run_dir``, after checking that ``args`` are
-    the run's own (only ``RESUMABLE_ARGS`` may differ: a longer budget extends a run). Raises
-    ``CheckpointError`` with the reason otherwise."""
+    """What ``save_resume_state`` wrote in ``run_dir``, after checking that ``args`` are the
+    run's own (only ``RESUMABLE_ARGS`` may differ). ``CheckpointError`` says why not."""
+    if not os.path.isdir(run_dir):
+        raise CheckpointError(f"--resume {run_dir}: no such run folder")
     path = os.path.join(run_dir, RESUME_FILE)
     if not os.path.isfile(path):
         raise CheckpointError(f"no {RESUME_FILE} in {run_dir} (the run must be started with "
                               "--resume-freq for it to be written)")  # fmt: skip
-    state = _read(path)
+    content = _read(path)
     # a flag added to the code since the run started: the run had its default
-    saved = {f.name: f.default for f in dataclasses.fields(args)} | state["args"]
+    saved = {f.name: f.default for f in dataclasses.fields(args)} | content["args"]
+    if content["script"] != SCRIPT:
+        raise CheckpointError(f"{run_dir} is a run of {content['script']}; resume it with that")
     differ = [f"--{k.replace('_', '-')} {saved.get(k)!r} (now {v!r})"
               for k, v in vars(args).items()
               if k not in RESUMABLE_ARGS and saved.get(k) != v]  # fmt: skip
@@ -92,7 +122,7 @@ def load_resume_state(run_dir: str, args) -> dict:
     if differ:
         raise CheckpointError(f"{run_dir} was run with other arguments: {', '.join(differ)}; "
                               "resume it with the command that started it")  # fmt: skip
-    return state
+    return content
 
 
 def restore(target, saved) -> None:
@@ -107,30 +137,33 @@ def restore(target, saved) -> None:
 
 
 def load(path: str) -> dict:
-    """The checkpoint at ``path`` (a ``model.pt`` or a run folder holding one)."""
+    """The model file at ``path`` (a ``model.pt`` or the run folder holding one)."""
     if os.path.isdir(path):
         path = os.path.join(path, "model.pt")
+        if not os.path.isfile(path):
+            raise CheckpointError(f"no model.pt in {os.path.dirname(path)}: a run writes one "
+                                  "only when started with --save-model")  # fmt: skip
     if not os.path.isfile(path):
-        raise CheckpointError(f"no such checkpoint: {path}")
-    state = _read(path)
-    if state.get("script") not in SCRIPTS:
-        raise CheckpointError(
-            f"{path} is not a checkpoint of ppo_kl.py, qprop_ppo.py or ipg_her.py"
-        )
-    return state
+        raise CheckpointError(f"no such file: {path}")
+    content = _read(path)
+    if "agent" not in content or "normalizer" not in content:
+        raise CheckpointError(f"{path} is a resume file or another file, not a model.pt")
+    return content
 
 
 def _read(path: str) -> dict:
     """A file ``_write`` wrote, in this code's format, or a ``CheckpointError`` saying why not."""
     try:
-        state = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as e:
-        raise CheckpointError(f"{path} is not a checkpoint of these scripts ({e})") from e
-    if not isinstance(state, dict):
-        raise CheckpointError(f"{path} is not a checkpoint of these scripts")
-    if state.get("format_version") != FORMAT_VERSION:
+        content = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # a pickle naming code to run, or not a torch file at all
+        reason = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise CheckpointError(
-            f"{path} has checkpoint format {state.get('format_version')!r}; this code reads "
-            f"format {FORMAT_VERSION}: use it with the version of the code that wrote it"
-        )
-    return state
+            f"{path} was refused: it holds more than tensors and plain values, or is not a "
+            f"checkpoint of these scripts (files before format {FORMAT_VERSION} are refused "
+            f"too: retrain, or load them with the code that wrote them). {reason[:200]}"
+        ) from e
+    if not isinstance(content, dict) or content.get("format_version") != FORMAT_VERSION:
+        version = content.get("format_version") if isinstance(content, dict) else None
+        raise CheckpointError(f"{path} has checkpoint format {version!r}; this code reads format "
+                              f"{FORMAT_VERSION}")  # fmt: skip
+    return unplain(content)

@@ -1,23 +1,18 @@
 """The command-line shell every script shares, so that the scripts hold only their algorithms.
 
-Nothing here is about reinforcement learning: parsing an ``Args`` dataclass with tyro, refusing
-bad input with one ``error:`` line before any training starts, the checks every script needs,
-the run folder and its TensorBoard writer, and a ``kill`` that ends a run as Ctrl-C does.
-A check either returns or exits through ``fail``; it never changes ``args``.
+Nothing here is about reinforcement learning: parsing an ``Args`` dataclass with tyro, and
+refusing bad input with one ``error:`` line before any training starts (and before any run
+folder exists). A check either returns or exits through ``fail``; it never changes ``args``.
 """
 
 import contextlib
 import io
-import os
 import re
-import signal
 import sys
-import time
 from typing import NoReturn, TypeVar
 
 import gymnasium as gym
 import tyro
-from torch.utils.tensorboard import SummaryWriter
 
 A = TypeVar("A")
 
@@ -69,8 +64,9 @@ def check_common(args) -> bool:
     check_positive(args, "update_epochs", "eval_episodes", "learning_rate")
     if args.seed < 0:
         fail(f"--seed must be non-negative, got {args.seed}")
-    if args.save_freq < 0:
-        fail(f"--save-freq must be non-negative (0: save only at the end), got {args.save_freq}")
+    for name in ("save_freq", "eval_freq", "eval_workers", "resume_freq"):
+        if getattr(args, name) < 0:
+            fail(f"{flag(name)} must be non-negative (0 turns it off), got {getattr(args, name)}")
     batch_size = args.num_envs * args.num_steps
     if args.total_timesteps < batch_size:
         fail(
@@ -135,76 +131,3 @@ def check_video(env_id: str) -> None:
             f"--capture-video: rendering {env_id} failed ({type(e).__name__}); MuJoCo needs an "
             "OpenGL backend, e.g. apt install libosmesa6 and MUJOCO_GL=osmesa"
         )
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (``kill``), raised like Ctrl-C's KeyboardInterrupt so that a run ends cleanly."""
-
-
-def raise_terminated(signum, frame) -> NoReturn:
-    raise Terminated()
-
-
-def exit_code(interrupt: KeyboardInterrupt) -> int:
-    """The shell's convention: 128 + the signal's number (143 for SIGTERM, 130 for Ctrl-C)."""
-    return 128 + (signal.SIGTERM if isinstance(interrupt, Terminated) else signal.SIGINT)
-
-
-def start_run(args) -> tuple[str, SummaryWriter]:
-    """A new run folder ``{log_dir}/{env_id}__{exp_name}__{seed}__{unix time}`` (a suffix keeps
-    two runs started in the same second apart), its TensorBoard writer with the hyperparameters
-    as a text table (as CleanRL does), and SIGTERM turned into a KeyboardInterrupt like Ctrl-C's,
-    so that ``kill`` ends a run cleanly too."""
-    run_name = f"{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}"
-    run_dir = os.path.join(args.log_dir, run_name)
-    for suffix in range(1, 1000):
-        try:
-            os.makedirs(run_dir)
-            break
-        except FileExistsError:
-            run_dir = os.path.join(args.log_dir, f"{run_name}-{suffix}")
-        except OSError as e:
-            fail(f"cannot create the run folder in --log-dir {args.log_dir!r}: {e.strerror}")
-    print(f"run folder: {run_dir}", flush=True)
-    writer = SummaryWriter(run_dir)
-    signal.signal(signal.SIGTERM, raise_terminated)
-    table = "\n".join(f"|{key}|{value}|" for key, value in vars(args).items())
-    writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n{table}")
-    return run_dir, writer
-
-
-def resume_run(run_dir: str, step: int) -> tuple[str, SummaryWriter]:
-    """Go on logging into an existing run folder after ``step``: TensorBoard drops the events an
-    interrupted run wrote after its last resume point (``purge_step``: from step + 1 on), so no
-    step is logged twice."""
-    print(f"resuming run folder: {run_dir} after step {step:,}", flush=True)
-    signal.signal(signal.SIGTERM, raise_terminated)
-    return run_dir, SummaryWriter(run_dir, purge_step=step + 1)
-
-
-class Progress:
-    """A live line (steps done of total, steps/s, ETA, the latest training figure), redrawn in
-    place when standard output is a terminal and silent when it is not (CI, the benchmark
-    runner's logs); ``print`` writes a message above it, ``close`` the closing summary."""
-
-    def __init__(self, total_steps: int):
-        self.total, self.live, self.start = total_steps, sys.stdout.isatty(), time.time()
-
-    def update(self, step: int, sps: int, latest: str = "") -> None:
-        if self.live:
-            eta = (self.total - step) / max(sps, 1)
-            line = f"{step:,}/{self.total:,} steps  {sps:,} steps/s  ETA {eta:.0f} s  {latest}"
-            print(f"\r\033[K{line}", end="", flush=True)
-
-    def print(self, message: str, file=None) -> None:
-        if self.live:
-            print("\r\033[K", end="", flush=True)
-        print(message, file=file or sys.stdout, flush=True)
-
-    def close(self, steps: int, eval_returns, eval_success) -> None:
-        summary = f"done: {steps:,} steps in {time.time() - self.start:.0f} s"
-        if len(eval_returns):
-            summary += f"; last evaluation: return {eval_returns.mean():.1f}"
-        if len(eval_success):
-            summary += f", success {eval_success.mean():.2f}"
-        self.print(summary)

@@ -8,18 +8,18 @@ From Python (a notebook), on raw environment observations (a Dict on goal tasks)
     policy = load_policy("runs/.../model.pt")
     action = policy(obs)
 
-The policy is rebuilt from the checkpoint alone: its ``script`` and ``args`` say which networks,
-task and sizes, and the normaliser's statistics are frozen as they were saved. Without
-``--seed``, the episodes are the ones the run's last evaluation played before the save, so for
-the model.pt a finished run saves at its end, right after that evaluation, the mean return
-printed here is the run's own last ``eval/episodic_return``. A checkpoint saved mid-way
-(``--save-freq``, or at an interruption) holds weights newer than the evaluated ones: the same
-episodes, not the same numbers.
+The policy is rebuilt from the file alone (``common/checkpoint.py``): the actor's weights (the
+scripts' ``Agent``: a tanh MLP for the mean, a state-independent log std) and the normaliser
+named by ``normalizer_class``, frozen as saved: ``InputNormalizer`` takes a goal Dict's
+observation and desired goal apart, ``RunningMeanStd`` a flattened Dict. Training evaluates
+through this same code, so without ``--seed`` the episodes are the ones the run's last
+evaluation played, and a model.pt saved at a run's end prints that evaluation's mean return.
+A model.pt saved mid-way (``--save-freq``, an interruption) holds newer weights than the
+evaluated ones: the same episodes, not the same numbers.
 """
 
 import collections
 import copy
-import importlib
 import multiprocessing
 import os
 import signal
@@ -30,16 +30,18 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 import torch
+import torch.nn.functional as F
 import tyro
 
 from common import checkpoint, cli, seeding
 from common.normalizer import InputNormalizer, RunningMeanStd
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-
 
 @dataclass
 class Args:
+    """Evaluate a saved policy: its mean return (and success rate) over episodes, optionally
+    recorded as videos."""
+
     path: tyro.conf.Positional[str]
     """a model.pt written with --save-model, or the run folder holding it"""
     episodes: int | None = None
@@ -49,7 +51,8 @@ class Args:
     stochastic: bool = False
     """sample actions from the Gaussian policy instead of taking its mean"""
     capture_video: bool = False
-    """record the episodes into the run folder's videos/evaluate (needs moviepy and a renderer)"""
+    """record the first episode into the run folder's videos/evaluate (needs moviepy and
+    MuJoCo's renderer, e.g. MUJOCO_GL=egl, or osmesa with libosmesa6)"""
     env_id: str | None = None
     """evaluate on another task with the same observation and action spaces"""
 
@@ -57,70 +60,94 @@ class Args:
 class Policy:
     """A saved policy as a function of a raw environment observation: ``action = policy(obs)``."""
 
-    def __init__(self, script, agent, normalizer, env_id: str, state: dict, raw_spaces: tuple):
-        self.script, self.agent, self.normalizer = script, agent, normalizer
-        self.env_id, self.args = env_id, state["args"]
-        self.last_eval_seeds = state["last_eval_seeds"]
-        self.obs_space, action_space = raw_spaces  # the environment's own, before any wrapper
+    def __init__(self, content: dict, env_id: str):
+        self.env_id, self.args = env_id, content["args"]
+        self.last_eval_seeds = content["last_eval_seeds"]
+        saved = content["normalizer"]
+        if content["normalizer_class"] == "InputNormalizer":
+            self.normalizer = InputNormalizer(len(saved["obs_rms"]["mean"]),
+                                              len(saved["goal_rms"]["mean"]))  # fmt: skip
+        else:
+            self.normalizer = RunningMeanStd(np.shape(saved["mean"]))
+        self.normalizer.load_state_dict(saved)
+        actor = content["agent"]
+        depth = 1 + max(int(k.split(".")[1]) for k in actor if k.startswith("actor_mean."))
+        self.layers = [
+            (actor[f"actor_mean.{i}.weight"], actor[f"actor_mean.{i}.bias"])
+            for i in range(0, depth, 2)
+        ]  # Linear, Tanh, Linear, Tanh, Linear
+        self.log_std = actor["actor_logstd"]
+        cli.register_goal_tasks()
+        env = gym.make(env_id)
+        self.obs_space, action_space = env.observation_space, env.action_space
+        env.close()
         self.low, self.high = action_space.low, action_space.high
+        spaces = getattr(self.obs_space, "spaces", {"observation": self.obs_space})
+        in_dim = gym.spaces.flatdim(self.obs_space)  # a goal Dict flattened, or a vector
+        if isinstance(self.normalizer, InputNormalizer):  # observation and desired goal
+            keys = [k for k in ("observation", "desired_goal") if k in spaces]
+            in_dim = sum(gym.spaces.flatdim(spaces[k]) for k in keys)
+        saved = (self.layers[0][0].shape[1], self.log_std.shape[1])
+        if (in_dim, action_space.shape[0]) != saved:
+            raise ValueError(
+                f"{env_id} does not match the policy trained on {self.args.get('env_id')}: "
+                f"input size {in_dim} and action size {action_space.shape[0]}, the policy's "
+                f"{saved[0]} and {saved[1]}"
+            )
+
+    def inputs(self, obs) -> torch.Tensor:
+        if isinstance(self.normalizer, InputNormalizer):
+            return self.normalizer(obs)[None]
+        flat = gym.spaces.flatten(self.obs_space, obs) if isinstance(obs, dict) else obs
+        return self.normalizer(flat[None])
 
     def __call__(self, obs, stochastic: bool = False) -> np.ndarray:
-        if self.script.__name__ == "ipg_her":
-            x = self.normalizer.raw(obs)[None]
-        else:  # PPO-KL and Q-Prop flatten a goal Dict into one vector, as their make_env does
-            flat = gym.spaces.flatten(self.obs_space, obs) if isinstance(obs, dict) else obs
-            x = torch.as_tensor(self.normalizer.normalize(flat)[None])
+        x = self.inputs(obs)
         with torch.no_grad():
-            action = self.agent.dist(x).sample() if stochastic else self.agent.actor_mean(x)
-        return np.clip(action.numpy()[0], self.low, self.high)
+            for i, (weight, bias) in enumerate(self.layers):
+                x = F.linear(x, weight, bias)
+                x = torch.tanh(x) if i < len(self.layers) - 1 else x
+            if stochastic:
+                x = torch.normal(x, self.log_std.expand_as(x).exp())
+        return np.clip(x.numpy()[0], self.low, self.high)
 
-    def evaluate(self, seeds: list[int], stochastic=False, video_dir=None):
-        """The script's own ``evaluate``: episodic returns and, on goal tasks, successes."""
-        norm = self.normalizer
-        return self.script.evaluate(self.agent, norm, self.env_id, seeds, video_dir, stochastic)
+    def evaluate(self, seeds: list[int], stochastic=False, video_dir=None, video_episodes=1):
+        """One episode per reset seed: the episodic returns and, on goal tasks, the successes
+        (``is_success`` at the end). ``video_dir``: record the first ``video_episodes``."""
+        env = gym.make(self.env_id, render_mode="rgb_array" if video_dir else None)
+        if video_dir:
+            env = gym.wrappers.RecordVideo(env, video_dir, lambda e: e < video_episodes,
+                                           disable_logger=True)  # fmt: skip
+        env = gym.wrappers.RecordEpisodeStatistics(env)
+        returns, successes = [], []
+        for seed in seeds:
+            obs, _ = env.reset(seed=seed)
+            done = False
+            while not done:
+                obs, _, terminated, truncated, info = env.step(self(obs, stochastic))
+                done = terminated or truncated
+            returns.append(info["episode"]["r"])
+            if "is_success" in info:
+                successes.append(info["is_success"])
+        env.close()
+        return np.array(returns, np.float64), np.array(successes, np.float64)
+
+
+def evaluate_snapshot(snapshot: dict, env_id: str, seeds: list[int], video_dir=None):
+    """Training's evaluation: the deterministic policy of a snapshot ``checkpoint.state``."""
+    policy = Policy(snapshot | {"args": {}, "last_eval_seeds": []}, env_id)
+    return policy.evaluate(seeds, video_dir=video_dir)
 
 
 def load_policy(path: str, env_id: str | None = None) -> Policy:
     """The policy saved at ``path`` (a model.pt or its run folder), optionally on another task
     whose spaces match. Raises ``checkpoint.CheckpointError`` or ``ValueError`` on bad input."""
-    state = checkpoint.load(path)
-    saved_env_id = state["args"]["env_id"]
-    env_id = env_id or saved_env_id
+    content = checkpoint.load(path)
+    env_id = env_id or content["args"]["env_id"]
     cli.register_goal_tasks()
     if env_id not in gym.registry:
         raise ValueError(f"unknown --env-id {env_id!r}: not a registered gymnasium id")
-    if ROOT not in sys.path:
-        sys.path.insert(0, ROOT)
-    script = importlib.import_module(state["script"])
-    raw_env, env = gym.make(env_id), script.make_env(env_id)()
-    raw_spaces = raw_env.observation_space, raw_env.action_space
-    obs_space, act_space = env.observation_space, env.action_space  # what the policy sees
-    raw_env.close()
-    env.close()
-    if not isinstance(act_space, gym.spaces.Box):
-        raise ValueError(f"{env_id} has {type(act_space).__name__} actions, the policy Box ones")
-    act_dim = act_space.shape[0]
-    if state["script"] == "ipg_her":
-        goal_task = isinstance(obs_space, gym.spaces.Dict)
-        obs_dim = obs_space["observation"].shape[0] if goal_task else obs_space.shape[0]
-        goal_dim = obs_space["desired_goal"].shape[0] if goal_task else 0
-        normalizer = InputNormalizer(obs_dim, goal_dim)
-        agent = script.Agent(obs_dim + goal_dim, act_dim, hidden=state["args"]["hidden"])
-        in_dim = obs_dim + goal_dim
-    else:
-        in_dim = obs_space.shape[0]
-        normalizer = RunningMeanStd((in_dim,))
-        agent = script.Agent(in_dim, act_dim)
-    saved_in = state["agent"]["actor_mean.0.weight"].shape[1]
-    saved_act = state["agent"]["actor_logstd"].shape[1]
-    if (in_dim, act_dim) != (saved_in, saved_act):
-        raise ValueError(
-            f"{env_id} does not match the policy trained on {saved_env_id}: observation size "
-            f"{in_dim} and action size {act_dim}, the policy's {saved_in} and {saved_act}"
-        )
-    agent.load_state_dict(state["agent"])
-    normalizer.load_state_dict(state["normalizer" if state["script"] == "ipg_her" else "obs_rms"])
-    return Policy(script, agent, normalizer, env_id, state, raw_spaces)
+    return Policy(content, env_id)
 
 
 def _worker_init() -> None:

@@ -39,6 +39,10 @@ class RunningMeanStd:
         z = (np.asarray(x, np.float64) - self.mean) / np.sqrt(self.var + self.eps)
         return np.clip(z, -self.clip, self.clip).astype(np.float32)
 
+    def __call__(self, x: np.ndarray) -> torch.Tensor:
+        """The policy's input: ``normalize(x)`` as a tensor."""
+        return torch.as_tensor(self.normalize(x))
+
     def state_dict(self) -> dict:
         return {
             "mean": self.mean.copy(),
@@ -68,15 +72,20 @@ class InputNormalizer:
         else:
             self.obs_rms.update(raw)
 
-    def __call__(self, obs: np.ndarray, goal: np.ndarray | None = None) -> torch.Tensor:
+    def inputs(self, obs: np.ndarray, goal: np.ndarray | None = None) -> torch.Tensor:
+        """The input of observations ``obs`` and, on goal tasks, goals ``goal`` (arrays)."""
         x = self.obs_rms.normalize(obs)
         if self.goal_task:
             x = np.concatenate([x, self.goal_rms.normalize(goal)], axis=-1)
         return torch.as_tensor(x)
 
-    def raw(self, raw) -> torch.Tensor:
-        """Normalise a raw environment observation (a Dict on goal tasks)."""
-        return self(raw["observation"], raw["desired_goal"]) if self.goal_task else self(raw)
+    def __call__(self, raw) -> torch.Tensor:
+        """The input of a raw environment observation (a Dict on goal tasks)."""
+        return (
+            self.inputs(raw["observation"], raw["desired_goal"])
+            if self.goal_task
+            else self.inputs(raw)
+        )
 
     def state_dict(self) -> dict:
         return {"obs_rms": self.obs_rms.state_dict(), "goal_rms": self.goal_rms.state_dict()}
@@ -84,3 +93,32 @@ class InputNormalizer:
     def load_state_dict(self, state: dict) -> None:
         self.obs_rms.load_state_dict(state["obs_rms"])
         self.goal_rms.load_state_dict(state["goal_rms"])
+
+
+class RewardScaler:
+    """Rewards divided by the running std of the discounted return (CleanRL's NormalizeReward,
+    over a whole rollout at a time). ``returns`` (one per env) carries the discounted return
+    from rollout to rollout and restarts where an episode ends."""
+
+    def __init__(self, num_envs: int, gamma: float):
+        self.rms, self.returns, self.gamma = RunningMeanStd(()), np.zeros(num_envs), gamma
+
+    def __call__(self, rewards: torch.Tensor, episode_ends: torch.Tensor) -> torch.Tensor:
+        """Update the statistics with this rollout's returns, then scale its rewards."""
+        returns = np.zeros(rewards.shape)
+        for t in range(rewards.shape[0]):
+            self.returns[:] = self.returns * self.gamma + rewards[t].numpy()
+            returns[t] = self.returns
+            self.returns[episode_ends[t].numpy() > 0] = 0.0
+        self.rms.update(returns.reshape(-1))
+        return rewards / self.std()
+
+    def std(self) -> float:
+        return float(np.sqrt(self.rms.var + 1e-8))
+
+    def state_dict(self) -> dict:
+        return {"rms": self.rms.state_dict(), "returns": self.returns.copy()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.rms.load_state_dict(state["rms"])
+        self.returns[:] = state["returns"]

@@ -1,7 +1,6 @@
 """common/cli.py and each script's own argument checks, in-process: bad input exits with one
 ``error:`` line naming the problem, before any run folder exists."""
 
-import numpy as np
 import pytest
 from conftest import assert_clean_error, run_dirs, run_script
 
@@ -9,6 +8,7 @@ import ipg_her
 import ppo_kl
 import qprop_ppo
 from common import cli
+from common.run import start_run
 
 SCRIPTS = {"ppo_kl": ppo_kl, "qprop_ppo": qprop_ppo, "ipg_her": ipg_her}
 
@@ -109,21 +109,13 @@ def test_critic_learning_rate_must_be_positive(capsys, script):
 def test_an_uncreatable_log_dir_is_refused_and_run_folders_are_unique(capsys, tmp_path):
     args = cli.parse_args(ppo_kl.Args, ["--log-dir", "/proc/no/such/dir"])
     with pytest.raises(SystemExit):
-        cli.start_run(args)
+        start_run(args)
     assert capsys.readouterr().err.startswith("error: cannot create the run folder")
     args = cli.parse_args(ppo_kl.Args, ["--log-dir", str(tmp_path)])
-    folders = [cli.start_run(args) for _ in range(3)]  # the same second, the same seed
+    folders = [start_run(args) for _ in range(3)]  # the same second, the same seed
     for _, writer in folders:
         writer.close()
     assert len({run_dir for run_dir, _ in folders}) == 3
-
-
-def test_progress_line_is_silent_when_output_is_not_a_terminal(capsys):
-    progress = cli.Progress(1000)
-    progress.update(500, 100, "return 3.0")
-    assert capsys.readouterr().out == ""
-    progress.close(1000, np.array([1.0, 3.0]), np.array([1.0, 0.0]))
-    assert "last evaluation: return 2.0, success 0.50" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("script", SCRIPTS)

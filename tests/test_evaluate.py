@@ -12,6 +12,7 @@ from conftest import ROOT, run_dirs, run_script, scalars
 
 import ipg_her
 from common import checkpoint, evaluate
+from common.normalizer import RunningMeanStd
 
 TINY_PPO = ["--num-envs", "2", "--num-steps", "64", "--total-timesteps", "128",
             "--num-minibatches", "2", "--update-epochs", "1", "--eval-episodes", "2"]  # fmt: skip
@@ -44,7 +45,7 @@ def refused(capsys, *argv: str) -> str:
 
 
 def test_bad_input_gets_one_clear_line(hopper_run, tmp_path, capsys):
-    assert "no such checkpoint" in refused(capsys, str(tmp_path / "nothing.pt"))
+    assert "no such file" in refused(capsys, str(tmp_path / "nothing.pt"))
     (tmp_path / "notes.pt").write_text("not a checkpoint")
     assert "not a checkpoint" in refused(capsys, str(tmp_path / "notes.pt"))
     torch.save({"script": "ppo_kl", "format_version": 99}, tmp_path / "future.pt")
@@ -58,7 +59,8 @@ def test_an_interrupted_save_leaves_the_previous_checkpoint_loadable(tmp_path, m
     path = str(tmp_path / "model.pt")
     agent = torch.nn.Linear(2, 2)
     args = type("Args", (), {"env_id": "Hopper-v5"})()
-    checkpoint.save(path, script="ppo_kl", args=args, last_eval_seeds=[1, 2], agent=agent)
+    model = dict(agent=agent, normalizer=RunningMeanStd((2,)))
+    checkpoint.save(path, args, [1, 2], **model)
 
     def killed_half_way(state, file):
         with open(file, "wb") as f:
@@ -67,7 +69,7 @@ def test_an_interrupted_save_leaves_the_previous_checkpoint_loadable(tmp_path, m
 
     monkeypatch.setattr(torch, "save", killed_half_way)
     with pytest.raises(KeyboardInterrupt):
-        checkpoint.save(path, script="ppo_kl", args=args, last_eval_seeds=[3], agent=agent)
+        checkpoint.save(path, args, [3], **model)
     state = checkpoint.load(path)
     assert state["last_eval_seeds"] == [1, 2]
     torch.testing.assert_close(state["agent"]["weight"], agent.weight.detach())

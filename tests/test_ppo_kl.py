@@ -61,7 +61,7 @@ def test_no_transition_crosses_a_reset_and_truncation_bootstraps_from_final_obs(
     raw_obs, _ = envs.reset(seed=0)
     obs_rms = RunningMeanStd((2,))  # never updated: normalisation is the identity here
     ro, last_raw, episodes = ppo_kl.collect_rollout(
-        envs, agent, obs_rms, raw_obs, 40, update_obs_rms=False
+        envs, agent, obs_rms, raw_obs, 40, update_norm=False
     )
     obs, final_obs, ends, terms = (
         ro["obs"],
@@ -91,7 +91,6 @@ def test_no_transition_crosses_a_reset_and_truncation_bootstraps_from_final_obs(
     b = ppo_kl.make_batch(agent, ro, torch.as_tensor(last_raw, dtype=torch.float32), gamma, 0.0)
     v = agent.get_value(obs)
     expected_next = torch.where(ends, agent.get_value(final_obs), agent.get_value(nxt))
-    torch.testing.assert_close(b["next_values"], expected_next.flatten())
     delta = ro["rewards"] + gamma * (~terms) * expected_next - v
     torch.testing.assert_close(b["advantages"], delta.flatten())
     trunc = (ends & ~terms).flatten()
@@ -193,7 +192,7 @@ def reset_seeds(monkeypatch, tmp_path, seed: int) -> list[int]:
     argv = ["ppo_kl.py", "--seed", str(seed), "--log-dir", str(tmp_path / str(seed)),
             "--num-envs", "2", "--num-steps", "64", "--total-timesteps", "256",
             "--num-minibatches", "2", "--update-epochs", "1", "--eval-freq", "128",
-            "--eval-episodes", "2"]  # fmt: skip
+            "--eval-episodes", "2", "--eval-workers", "0"]  # fmt: skip
     with monkeypatch.context() as patch, pytest.raises(SystemExit) as exit_info:
         patch.setattr(gym.Env, "reset", recording_reset)
         patch.setattr(sys, "argv", argv)

@@ -91,7 +91,7 @@ def linear_gaussian_problem(theta0=0.3, theta1=0.5, sigma=0.7, k=1.5):
 
 
 def policy_gradient_estimates(agent, qf, eta_mode, batches=3000, n=32, seed=0):
-    """Per-batch gradient estimates (bias, weight, log sigma) of J from qprop_surrogate, at
+    """Per-batch gradient estimates (bias, weight, log sigma) of J from qprop_loss, at
     theta = theta_old, with eta chosen by ``compute_eta`` as ``qprop_ppo.py`` chooses it."""
     g = torch.Generator().manual_seed(seed)
     estimates = []
@@ -107,9 +107,8 @@ def policy_gradient_estimates(agent, qf, eta_mode, batches=3000, n=32, seed=0):
             adv = qf(s, a) - value  # A_hat, exact here
         cv = qprop_ppo.control_variate(qf, agent, s, a)
         eta = qprop_ppo.compute_eta(adv, cv, eta_mode)
-        loss = qprop_ppo.qprop_surrogate(
-            agent, qf, agent.dist(s), s, a, logprobs, adv - eta * cv, eta
-        )
+        mb = {"obs": s, "actions": a, "logprobs": logprobs, "adv": adv - eta * cv, "eta": eta}
+        loss = qprop_ppo.qprop_loss(agent, qf, agent.dist(s), mb)
         grads = torch.autograd.grad(
             -loss, [agent.actor_mean.bias, agent.actor_mean.weight, agent.actor_logstd]
         )
@@ -173,12 +172,12 @@ def test_a_wrong_control_variate_or_missing_analytic_term_is_detected(monkeypatc
         correct = qprop_ppo.control_variate
         monkeypatch.setattr(qprop_ppo, "control_variate", lambda *a: -correct(*a))
     else:
-        surrogate = qprop_ppo.qprop_surrogate
+        loss = qprop_ppo.qprop_loss
 
-        def without_analytic_term(*a, **kw):
-            return surrogate(*a[:7], torch.zeros_like(a[7]))
+        def without_analytic_term(agent, qf, pi, mb, *a):
+            return loss(agent, qf, pi, mb | {"eta": torch.zeros_like(mb["eta"])}, *a)
 
-        monkeypatch.setattr(qprop_ppo, "qprop_surrogate", without_analytic_term)
+        monkeypatch.setattr(qprop_ppo, "qprop_loss", without_analytic_term)
     est = policy_gradient_estimates(agent, copy.deepcopy(qf), "ones", batches=1000)
     se = est.std(0) / np.sqrt(est.shape[0])
     assert torch.any((est.mean(0) - true_grad).abs() > 4 * se), mistake
@@ -207,9 +206,8 @@ def test_normalization_modes(normalization):
     def policy_grad(signal, scale):
         agent.zero_grad()
         pi = agent.dist(b["obs"])
-        qprop_ppo.qprop_surrogate(
-            agent, qf, pi, b["obs"], b["actions"], b["logprobs"], signal, b["eta"], scale
-        ).backward()
+        mb = {key: b[key] for key in ("obs", "actions", "logprobs", "eta")} | {"adv": signal}
+        qprop_ppo.qprop_loss(agent, qf, pi, mb, scale).backward()
         return torch.cat([p.grad.flatten() for p in agent.actor_mean.parameters()])
 
     expected_scale = 1.0 / sigma if normalization == "unbiased" else 1.0
@@ -320,7 +318,7 @@ def test_replay_holds_the_executed_action():
     assert np.any(np.abs(sampled) > 1), "no action outside the bounds: the check would be vacuous"
     np.testing.assert_array_equal(rb.actions[:30], np.clip(sampled, -1.0, 1.0))
     torch.testing.assert_close(
-        qprop_ppo.sample_replay(rb, RunningMeanStd((2,)), 0.5, 16)["rewards"],
+        qprop_ppo.sample_replay(rb, RunningMeanStd((2,)), 0.5, 16)[0]["rewards"],
         torch.full((16,), 0.5),
     )
 

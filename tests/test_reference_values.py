@@ -1,5 +1,6 @@
 """A refactor keeps the numbers: short runs of each script, same seed and flags, must log the
-same scalars, bit for bit, as the values recorded in ``reference_values.json``.
+same scalars, bit for bit, as the values recorded in ``reference_values.json`` (a tag logged
+since, such as ipg_her.py's ``losses/epochs``, is not among them).
 
 The values were recorded at the commit before the teaching-edition restructuring (fb5d47c) and
 are re-recorded only by a commit that changes the numbers on purpose, saying why:
@@ -48,7 +49,7 @@ def logged(name: str, log_dir) -> dict:
 def test_the_same_seed_and_flags_log_the_recorded_scalars(tmp_path, name):
     expected = json.loads(REFERENCE.read_text())[name]
     got = json.loads(json.dumps(logged(name, tmp_path)))  # the same float -> JSON round trip
-    assert sorted(got) == sorted(expected), "the logged tags changed"
+    assert set(expected) <= set(got), f"tags no longer logged: {set(expected) - set(got)}"
     for tag in expected:
         assert got[tag] == expected[tag], f"{name}: {tag} differs from the recorded values"
 

@@ -98,31 +98,55 @@ def test_success_table_columns_and_episode_counts_come_from_the_runs(tmp_path, c
     assert "episodes per evaluation: FetchReach-v4: 7)" in text and "20 episodes" not in text
 
 
-@pytest.mark.parametrize("content", [None, "# a README without markers\n"])
-def test_readme_without_file_or_markers_is_one_error_line(tmp_path, content):
+@pytest.mark.parametrize("content", [None, "# a page without markers\n"])
+def test_page_without_file_or_markers_is_one_error_line(tmp_path, content):
     runs = tmp_path / "runs" / "quick"
     write_run(runs, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
-    readme = tmp_path / "README.md"
+    page = tmp_path / "results.md"
     if content is not None:
-        readme.write_text(content)
+        page.write_text(content)
     cmd = [sys.executable, "benchmarks/report.py", "--suite", "quick", "--runs-dir",
            str(tmp_path / "runs"), "--results-dir", str(tmp_path / "out"),
-           "--readme", str(readme)]  # fmt: skip
+           "--page", str(page)]  # fmt: skip
     result = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
-    assert len(errors) == 1 and str(readme) in errors[0], result.stderr
+    assert len(errors) == 1 and str(page) in errors[0], result.stderr
 
 
-def test_readme_naming_no_file_fails_before_reading_or_writing_anything():
+def test_page_naming_no_file_fails_before_reading_or_writing_anything():
     """The command as typed from the project root, with the defaults (the paper suite): the bad
-    --readme is reported first, so the committed benchmarks/results are left as they are."""
-    results = ROOT / "benchmarks" / "results"
-    before = {p: p.stat().st_mtime_ns for p in results.rglob("*")}
-    cmd = [sys.executable, "benchmarks/report.py", "--readme", "/no/such/file"]
+    --page is reported first, so the committed results and docs figures are left as they are."""
+    written = [ROOT / "benchmarks" / "results", ROOT / "docs" / "img"]
+    before = {p: p.stat().st_mtime_ns for d in written for p in d.rglob("*")}
+    cmd = [sys.executable, "benchmarks/report.py", "--page", "/no/such/file"]
     result = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert_clean_error(result, "/no/such/file", "no such file")
-    assert {p: p.stat().st_mtime_ns for p in results.rglob("*")} == before
+    assert {p: p.stat().st_mtime_ns for d in written for p in d.rglob("*")} == before
+
+
+def test_page_gets_the_block_between_its_markers_and_the_figures_beside_it(tmp_path):
+    """--page: the text around the markers stays, the block between them is replaced, and the
+    figures go into img/{suite}/ beside the page (the docs site serves only docs/), linked
+    relative to it; the results folder keeps the export and results.md."""
+    runs = tmp_path / "runs" / "quick"
+    write_run(runs, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
+    docs = tmp_path / "docs"
+    docs.mkdir()
+    page = docs / "results.md"
+    start, end = "<!-- results:quick:start -->", "<!-- results:quick:end -->"
+    page.write_text(f"# Results\n\nbefore\n{start}\nold block\n{end}\nafter\n")
+    args = report.Args(suite="quick", runs_dir=str(tmp_path / "runs"),
+                       results_dir=str(tmp_path / "results"), page=str(page))  # fmt: skip
+    assert report.main(args) == 0
+    text = page.read_text()
+    assert text.startswith("# Results\n\nbefore\n" + start) and text.endswith(end + "\nafter\n")
+    assert "old block" not in text and "| FetchReach-v4 | IPG+HER | 1 |" in text
+    assert "![fig5_fetchreach_success.png](img/quick/fig5_fetchreach_success.png)" in text
+    assert (docs / "img" / "quick" / "fig5_fetchreach_success.png").is_file()
+    assert not list((tmp_path / "results").glob("*.png"))
+    assert (tmp_path / "results" / "results.md").is_file()
+    assert (tmp_path / "results" / "curves.json").is_file()
 
 
 def test_rows_merged_from_an_earlier_export_are_marked(tmp_path):
@@ -268,3 +292,19 @@ def test_finalists_table_reads_fresh_seeds_only_with_bootstrap_intervals(tmp_pat
     mean, lo, hi = map(float, re.findall(r"[0-9.]+", cells[4]))
     assert mean == 0.6 and 0.4 <= lo < mean < hi <= 0.8
     assert report.finalists_table({}, np.random.default_rng(0)) == ""
+
+
+def test_early_evaluation_is_labelled_with_the_step_it_was_at():
+    """Hopper evaluates every 20,480 steps: the last evaluation by 100,000 steps is the one at
+    81,920, and the table says so; runs evaluated at different steps give the range."""
+    curve = lambda every, values: [[every * (i + 1), v] for i, v in enumerate(values)]  # noqa: E731
+    run = lambda every, value: {  # noqa: E731
+        "eval/episodic_return": curve(every, [value] * 6),
+        "final": value,
+    }
+    groups = {"ipg_nu0.0_300k__Hopper-v5": {"11": run(20_480, 500.0), "12": run(20_480, 700.0)}}
+    row = report.finalists_table(groups, np.random.default_rng(0)).splitlines()[2]
+    assert row.split(" | ")[3].startswith("@ 81,920: 600 ["), row
+    runs = [run(20_480, 1.0), run(25_000, 1.0)]
+    assert report.steps_at(runs, "eval/episodic_return", 100_000) == "81,920-100,000"
+    assert report.steps_at(runs, "eval/episodic_return", 10_000) == "-"

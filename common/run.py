@@ -1,0 +1,270 @@
+"""What no algorithm is about, so that each script holds only its own.
+
+A script's ``Args`` extends ``RunArgs`` (the run fields, here once) and its loop drives a ``Run``:
+
+    run = Run(args)                                   # run folder, TensorBoard, seeded streams
+    ...                                               # environments, networks, optimisers
+    raw_obs, beta = run.start(envs, model={...}, training={...}, beta=args.beta_init)
+    with run:                                         # Ctrl-C, kill, NaN: a clean end
+        for iteration in run.iterations(num_iterations):
+            ...                                       # the algorithm
+            global_step = run.record_episodes(episodes)
+            ...
+            run.end_iteration(stats, beta=beta)       # scalars, evaluation, saving, progress
+
+``model`` holds what ``model.pt`` keeps (``agent`` and its input ``normalizer``, which is all a
+policy needs, plus any critic); ``training`` what else ``resume.pt`` needs to go on (optimisers,
+replay, reward statistics). Keyword values (``beta``) are scalars a resumed run takes back.
+
+Evaluation runs the deterministic policy of a snapshot of ``model`` through
+``common.evaluate.Policy``, the same code that ``python -m common.evaluate`` runs on a saved
+model, in a background process (``--eval-workers 1``) or in this one (``0``).
+"""
+
+import os
+import random
+import signal
+import sys
+import time
+from dataclasses import dataclass
+from typing import NoReturn
+
+import numpy as np
+import torch
+from torch.utils.tensorboard import SummaryWriter
+from tqdm import tqdm
+
+from common import checkpoint, cli, seeding
+from common.evaluate import BackgroundEvaluator, evaluate_snapshot
+
+
+@dataclass
+class RunArgs:
+    exp_name: str = os.path.basename(sys.argv[0]).removesuffix(".py")
+    """the name of this experiment (part of the run folder's name; default: the script's name)"""
+    seed: int = 1
+    """the run's seed: every random stream of the run derives from it (common/seeding.py)"""
+    torch_deterministic: bool = True
+    """set torch.backends.cudnn.deterministic (CleanRL's flag; CPU runs are deterministic anyway)"""
+    torch_threads: int = 1
+    """torch intra-op threads; one is fastest for these small networks"""
+    log_dir: str = "runs"
+    """parent folder of the run folders"""
+    eval_freq: int = 100_000
+    """evaluate the deterministic (mean) policy every this many env steps (0: only at the end)"""
+    eval_episodes: int = 10
+    """episodes per evaluation"""
+    eval_workers: int = 1
+    """evaluate in a background process while training goes on (0: in this process)"""
+    capture_video: bool = False
+    """record the evaluation episodes as videos into the run folder (needs moviepy)"""
+    save_model: bool = False
+    """save model.pt (weights, normaliser, args) into the run folder at the end"""
+    save_freq: int = 0
+    """with --save-model, also save every this many environment steps (0: only at the end)"""
+    resume_freq: int = 0
+    """write resume.pt every this many env steps and at the end (0: never), for --resume"""
+    resume: str | None = None
+    """go on with the run in this run folder from its resume.pt (same flags; a larger
+    --total-timesteps extends it); the environments restart with fresh episodes"""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``), raised like Ctrl-C's KeyboardInterrupt so that a run ends cleanly."""
+
+
+def raise_terminated(signum, frame) -> NoReturn:
+    raise Terminated()
+
+
+def start_run(args) -> tuple[str, SummaryWriter]:
+    """A new run folder ``{log_dir}/{env_id}__{exp_name}__{seed}__{unix time}`` (a suffix keeps
+    two runs started in the same second apart) and its writer, with the hyperparameters as a
+    text table, as CleanRL does."""
+    run_name = f"{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}"
+    run_dir = os.path.join(args.log_dir, run_name)
+    for suffix in range(1, 1000):
+        try:
+            os.makedirs(run_dir)
+            break
+        except FileExistsError:
+            run_dir = os.path.join(args.log_dir, f"{run_name}-{suffix}")
+        except OSError as e:
+            cli.fail(f"cannot create the run folder in --log-dir {args.log_dir!r}: {e.strerror}")
+    print(f"run folder: {run_dir}", flush=True)
+    writer = SummaryWriter(run_dir)
+    table = "\n".join(f"|{key}|{value}|" for key, value in vars(args).items())
+    writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n{table}")
+    return run_dir, writer
+
+
+class Run:
+    def __init__(self, args):
+        self.args, self.resumed = args, None
+        if args.resume:  # TensorBoard drops what the interrupted run logged after its resume point
+            try:
+                self.resumed = checkpoint.load_resume_state(args.resume, args)
+            except checkpoint.CheckpointError as e:
+                cli.fail(str(e))
+            step = self.resumed["global_step"]
+            self.dir, self.writer = args.resume, SummaryWriter(args.resume, purge_step=step + 1)
+            print(f"resuming run folder: {self.dir} after step {step:,}", flush=True)
+        else:
+            self.dir, self.writer = start_run(args)
+        signal.signal(signal.SIGTERM, raise_terminated)  # kill ends a run as Ctrl-C does
+        # seeding: one independent stream per use (common/seeding.py)
+        self.streams = seeding.streams(args.seed, args.num_envs)
+        random.seed(self.streams.global_seed)
+        np.random.seed(self.streams.global_seed)
+        torch.manual_seed(self.streams.torch_seed)
+        self.diagnostics_rng = np.random.default_rng(self.streams.diagnostics_seed)
+        self.diagnostics_generator = torch.Generator().manual_seed(self.streams.diagnostics_seed)
+        torch.backends.cudnn.deterministic = args.torch_deterministic
+        torch.set_num_threads(args.torch_threads)
+        self.global_step, self.train_time, self.last_eval, self.last_save = 0, 0.0, 0, 0
+        self.eval_seeds, self.eval_returns, self.eval_success = [], np.zeros(0), np.zeros(0)
+        self.recent_success, self.latest, self.scalars = [], "", {}
+        self.first_iteration, self.last_resume, self.start_time = 1, 0, time.time()
+
+    def start(self, envs, model: dict, training: dict, **scalars):
+        """Register what is saved, restore it all on ``--resume``, reset the environments.
+        Returns the first raw observation, then the ``scalars`` (resumed or as given)."""
+        self.envs, self.model, self.scalars = envs, model, scalars
+        streams = dict(eval_rng=self.streams.eval_rng, diagnostics_rng=self.diagnostics_rng,
+                       diagnostics_generator=self.diagnostics_generator)  # fmt: skip
+        self.parts = model | training | streams
+        self.evaluator = BackgroundEvaluator(self.args.eval_workers)
+        self.progress = tqdm(total=self.args.total_timesteps, unit=" steps", unit_scale=True,
+                             disable=not sys.stdout.isatty(), dynamic_ncols=True)  # fmt: skip
+        reset_seeds = self.streams.env_seeds
+        if self.resumed:
+            r = self.resumed
+            for name, part in self.parts.items():
+                checkpoint.restore(part, r[name])
+                if hasattr(part, "end_episodes"):  # replay: the envs restart with new episodes
+                    part.end_episodes()
+            checkpoint.set_rng_states(r["rng"])
+            self.scalars = {key: r["scalars"][key] for key in scalars}
+            self.global_step, self.train_time = r["global_step"], r["train_time"]
+            self.last_eval, self.last_save = r["last_eval"], r["last_save"]
+            self.eval_seeds, self.recent_success = r["eval_seeds"], r["recent_success"]
+            self.first_iteration, self.last_resume = r["iteration"] + 1, self.global_step
+            self.progress.update(self.global_step)
+            reset_seeds = seeding.resume_env_seeds(
+                self.args.seed, self.args.num_envs, r["global_step"]
+            )
+        raw_obs, _ = envs.reset(seed=reset_seeds)
+        return raw_obs, *self.scalars.values()
+
+    def iterations(self, num_iterations: int):
+        self.num_iterations = num_iterations
+        for iteration in range(self.first_iteration, num_iterations + 1):
+            self.iteration, self.t0 = iteration, time.time()
+            yield iteration
+
+    def record_episodes(self, episodes: list) -> int:
+        """Log the finished training episodes ``(t, env, return, length, success)`` of a
+        rollout; the global step then moves on by the rollout's steps. Returns it."""
+        num_envs = self.args.num_envs
+        for t, _, episodic_return, length, success in episodes:
+            step = self.global_step + (t + 1) * num_envs
+            self.writer.add_scalar("charts/episodic_return", episodic_return, step)
+            self.writer.add_scalar("charts/episodic_length", length, step)
+            if success is not None:
+                self.recent_success = (self.recent_success + [success])[-100:]
+                self.writer.add_scalar("charts/success_rate", np.mean(self.recent_success), step)
+        if episodes:  # the live line's training figure: success on goal tasks, else return
+            latest = (
+                f"train success {np.mean(self.recent_success):.2f}" if self.recent_success else ""
+            )
+            self.latest = latest or f"train return {episodes[-1][2]:.1f}"
+        self.global_step += num_envs * self.args.num_steps
+        return self.global_step
+
+    def log(self, scalars: dict) -> None:
+        """TensorBoard scalars at the current global step: ``{tag: value}``."""
+        for tag, value in scalars.items():
+            self.writer.add_scalar(tag, value, self.global_step)
+
+    def end_iteration(self, stats: dict, **scalars) -> None:
+        """After the update: the NaN guard on its ``stats`` (``{tag: value}``, logged), the
+        evaluation schedule, saving, the resume point and the live line."""
+        if not all(np.isfinite(v) for v in stats.values()):
+            raise FloatingPointError(
+                f"a loss became NaN or infinite at global step {self.global_step}: {stats}"
+            )
+        self.train_time += time.time() - self.t0
+        self.scalars |= scalars
+        sps = int(self.global_step / self.train_time)
+        self.log(stats | {"charts/SPS": sps})
+        args, step, last = self.args, self.global_step, self.iteration == self.num_iterations
+        resume_due = args.resume_freq > 0 and (step - self.last_resume >= args.resume_freq or last)
+        if last or (args.eval_freq > 0 and step - self.last_eval >= args.eval_freq):
+            self.last_eval, self.eval_seeds = step, self.streams.eval_seeds(args.eval_episodes)
+            video_dir = (
+                os.path.join(self.dir, "videos", f"step{step}") if args.capture_video else None
+            )
+            snapshot = checkpoint.state(self.model)
+            self.evaluator.submit(
+                step, evaluate_snapshot, snapshot, args.env_id, self.eval_seeds, video_dir
+            )
+        for eval_step, (returns, success) in self.evaluator.finished(wait=last or resume_due):
+            self.eval_returns, self.eval_success = returns, success
+            self.writer.add_scalar("eval/episodic_return", returns.mean(), eval_step)
+            message = f"step={eval_step} eval_return={returns.mean():.1f}"
+            if len(success):
+                self.writer.add_scalar("eval/success_rate", success.mean(), eval_step)
+                message += f" eval_success={success.mean():.2f}"
+            self.print(f"{message} SPS={sps}")
+        if args.save_model and args.save_freq and step - self.last_save >= args.save_freq:
+            self.last_save = step
+            self.save()
+        if resume_due:
+            self.last_resume = step
+            checkpoint.save_resume_state(
+                self.dir, args, **self.parts, rng=checkpoint.rng_states(), scalars=self.scalars,
+                iteration=self.iteration, global_step=step, train_time=self.train_time,
+                last_eval=self.last_eval, last_save=self.last_save,
+                recent_success=self.recent_success, eval_seeds=self.eval_seeds,
+            )  # fmt: skip
+        self.progress.update(step - self.progress.n)
+        self.progress.set_postfix_str(self.latest, refresh=False)
+
+    def save(self) -> None:
+        path = os.path.join(self.dir, "model.pt")
+        checkpoint.save(path, self.args, self.eval_seeds, **self.model)
+        return path
+
+    def print(self, message: str, file=None) -> None:
+        """A line above the live one."""
+        tqdm.write(message, file=file or sys.stdout)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, error, traceback) -> NoReturn:
+        """Ctrl-C or kill: logs kept, exit 130 or 143; a NaN loss: one error line, exit 1.
+        Either way the model is saved (``--save-model``) and everything is closed."""
+        code = 0 if error is None else None  # None: a bug, whose traceback follows the cleanup
+        if isinstance(error, KeyboardInterrupt):
+            message = f"interrupted at global step {self.global_step}; logs are kept in {self.dir}"
+            self.print(message, file=sys.stderr)
+            code = 128 + (signal.SIGTERM if isinstance(error, Terminated) else signal.SIGINT)
+        elif isinstance(error, FloatingPointError):
+            self.print(f"error: {error}", file=sys.stderr)
+            code = 1
+        if self.args.save_model:
+            self.print(f"model saved to {self.save()}")
+        self.evaluator.close()
+        self.envs.close()
+        self.writer.close()
+        self.progress.close()
+        if code is None:
+            return False
+        summary = f"done: {self.global_step:,} steps in {time.time() - self.start_time:.0f} s"
+        if len(self.eval_returns):
+            summary += f"; last evaluation: return {self.eval_returns.mean():.1f}"
+        if len(self.eval_success):
+            summary += f", success {self.eval_success.mean():.2f}"
+        print(summary, flush=True)
+        sys.exit(code)
