@@ -162,21 +162,21 @@ class Agent(nn.Module):
 class QNetwork(nn.Module):
     """Critic Q_w(s, a) of the action the environment executes: ``a`` is clipped to the action
     bounds first, so Q_w is never asked about actions it was not trained on (the targets, the
-    control variate and the analytic term all see the policy's action clipped). The action
-    joins after the first layer, as in the Q-Prop code."""
+    off-policy term and the control variate all see the policy's action clipped)."""
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden: int = 100, low=-np.inf, high=np.inf):
+    def __init__(self, obs_dim: int, act_dim: int, hidden: int = 128, low=-np.inf, high=np.inf):
         super().__init__()
-        self.fc1 = nn.Linear(obs_dim, hidden)
-        self.fc2 = nn.Linear(hidden + act_dim, hidden)
-        self.out = nn.Linear(hidden, 1)
+        self.net = nn.Sequential(
+            nn.Linear(obs_dim + act_dim, hidden), nn.ReLU(),
+            nn.Linear(hidden, hidden), nn.ReLU(),
+            nn.Linear(hidden, 1),
+        )  # fmt: skip
         self.register_buffer("low", torch.as_tensor(low, dtype=torch.float32).expand(act_dim))
         self.register_buffer("high", torch.as_tensor(high, dtype=torch.float32).expand(act_dim))
 
     def forward(self, x: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
-        h = torch.relu(self.fc1(x))
         a = torch.clamp(a, self.low, self.high)  # the executed action
-        return self.out(torch.relu(self.fc2(torch.cat([h, a], -1)))).squeeze(-1)
+        return self.net(torch.cat([x, a], -1)).squeeze(-1)
 
 
 # ALGO LOGIC: rollout with the current policy
@@ -505,8 +505,9 @@ if __name__ == "__main__":
                 and rb.num_sampleable() > 0
             )
             if learning and args.critic_steps > 0:
-                for _ in range(args.critic_steps):
-                    data = sample_replay(rb, norm, reward_scale, args.critic_batch_size)[0]
+                for data in sample_replay(
+                    rb, norm, reward_scale, args.critic_batch_size, count=args.critic_steps
+                ):
                     critic_loss, q_values = critic_step(
                         qf, qf_target, q_optimizer, agent, data, args.gamma, args.tau
                     )
@@ -519,7 +520,7 @@ if __name__ == "__main__":
                 b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
                 b["eta"] = compute_eta(b["advantages"], b["cv"], args.eta_mode)
                 cov = batch_covariance(b["advantages"], b["cv"])
-                measured = gradient_variance(agent, qf, b)
+                measured = gradient_variance(agent, qf, b, generator=run.diagnostics_generator)
                 measured |= {"eta": b["eta"].mean().item(), "cov": cov}
                 run.log({f"qprop/{key}": value for key, value in measured.items()})
 

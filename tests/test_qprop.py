@@ -333,3 +333,17 @@ def test_gradient_variance_falls_where_the_control_variate_is_right():
     d = qprop_ppo.gradient_variance(agent, qf, b)
     assert d["corr_adv_cv"] == pytest.approx(1.0)
     assert 0 <= d["grad_var_cv"] < 0.5 * d["grad_var"]
+
+
+def test_gradient_variance_leaves_the_training_stream_alone():
+    """The diagnostics draw their chunks from their own generator: measuring does not move the
+    global torch stream the training samples from (it did: turning them on changed training)."""
+    torch.manual_seed(0)
+    agent, qf = qprop_ppo.Agent(5, 2), qprop_ppo.QNetwork(5, 2, 16)
+    b = random_batch(64, 5, 2, agent)
+    b["cv"] = qprop_ppo.control_variate(qf, agent, b["obs"], b["actions"])
+    state = torch.get_rng_state()
+    qprop_ppo.gradient_variance(agent, qf, b, generator=torch.Generator().manual_seed(1))
+    assert torch.equal(torch.get_rng_state(), state)
+    qprop_ppo.gradient_variance(agent, qf, b)  # without one: the global stream moves
+    assert not torch.equal(torch.get_rng_state(), state)
