@@ -33,6 +33,7 @@ from common import cli
 from common.gae import compute_gae
 from common.her import HerReplayBuffer, ReplayBuffer
 from common.normalizer import InputNormalizer, RewardScaler
+from common.rollout import collect_rollout
 from common.run import Run, RunArgs
 
 cli.register_goal_tasks()
@@ -91,7 +92,7 @@ class Args(RunArgs):
     hidden: int = 64
     """width of the two hidden layers of every network"""
     norm_reward: bool = False
-    """divide rewards by the running std of the discounted return (GAE and critic alike)"""
+    """divide rewards by the running std of the discounted return"""
 
     # IPG arguments
     nu: float = 1.0
@@ -131,7 +132,7 @@ class Args(RunArgs):
 
 
 def check_args(args: Args, argv: list[str]) -> None:
-    """The checks every script shares (``common/cli.py``), then IPG's and HER's."""
+    """Bad input fails here, before anything runs (the shared checks: ``common/cli.py``)."""
     goal_task = cli.check_common(args)
     cli.check_positive(args, "critic_batch_size", "buffer_size", "off_policy_batch_size")
     cli.check_positive(args, "critic_learning_rate")
@@ -212,65 +213,6 @@ class QNetwork(nn.Module):
     def forward(self, x: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
         a = torch.clamp(a, self.low, self.high)  # the executed action
         return self.net(torch.cat([x, a], -1)).squeeze(-1)
-
-
-# ALGO LOGIC: rollout with the current policy
-def collect_rollout(envs, agent: Agent, norm: InputNormalizer, raw_obs, num_steps: int,
-                    rb: ReplayBuffer):  # fmt: skip
-    """Step the vector env ``num_steps`` times with actions sampled from pi_theta; every
-    transition also goes raw into the replay buffer ``rb``, with its real next observation.
-
-    Returns ``(rollout, raw_obs, episodes)``: ``rollout`` holds time-major ``(T, N, ...)`` tensors
-    ``obs`` (normalised, as the policy saw them), ``actions``, ``rewards`` (raw), ``terminations``,
-    ``episode_ends`` and ``final_obs`` (normalised true last observation where an episode ended at
-    step t, zeros elsewhere); ``raw_obs`` is where the envs stopped; ``episodes`` lists the finished
-    training episodes as ``(t, env, return, length, success or None)``.
-    """
-    T, N, act_dim = num_steps, envs.num_envs, envs.single_action_space.shape[0]
-    low, high = envs.single_action_space.low, envs.single_action_space.high
-    obs_dim = norm(raw_obs).shape[-1]  # observation and goal
-    ro = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
-          "actions": torch.zeros((T, N, act_dim)), "rewards": torch.zeros((T, N)),
-          "terminations": torch.zeros((T, N)), "episode_ends": torch.zeros((T, N))}  # fmt: skip
-    episodes = []
-    for t in range(T):
-        norm.update(raw_obs)
-        ro["obs"][t] = norm(raw_obs)
-        with torch.no_grad():
-            ro["actions"][t] = agent.dist(ro["obs"][t]).sample()
-        executed = np.clip(ro["actions"][t].numpy(), low, high)  # the critic learns its Q
-        next_raw_obs, reward, terminated, truncated, infos = envs.step(executed)
-        ended = terminated | truncated
-        ro["rewards"][t] = torch.as_tensor(reward)
-        ro["terminations"][t] = torch.as_tensor(terminated)
-        ro["episode_ends"][t] = torch.as_tensor(ended)
-        real_next_obs = copy.deepcopy(next_raw_obs) if ended.any() else next_raw_obs
-        # SAME_STEP autoreset: where an episode ended, next_raw_obs[i] is the next one's first
-        for i in np.flatnonzero(ended):
-            for key in real_next_obs if norm.goal_task else ():
-                real_next_obs[key][i] = infos["final_obs"][i][key]
-            if not norm.goal_task:
-                real_next_obs[i] = infos["final_obs"][i]
-            ro["final_obs"][t, i] = norm(infos["final_obs"][i])
-            info = infos["final_info"]
-            success = float(info["is_success"][i]) if "is_success" in info else None
-            episode_return, length = float(info["episode"]["r"][i]), int(info["episode"]["l"][i])
-            episodes.append((t, i, episode_return, length, success))
-        if norm.goal_task:  # HER needs the goals: achieved before and after, desired
-            rb.add(
-                obs=raw_obs["observation"], actions=executed, rewards=reward,
-                next_obs=real_next_obs["observation"], terminations=terminated,
-                truncations=truncated, achieved_goal=raw_obs["achieved_goal"],
-                next_achieved_goal=real_next_obs["achieved_goal"],
-                desired_goal=raw_obs["desired_goal"],
-            )  # fmt: skip
-        else:
-            rb.add(
-                obs=raw_obs, actions=executed, rewards=reward, next_obs=real_next_obs,
-                terminations=terminated, truncations=truncated,
-            )  # fmt: skip
-        raw_obs = next_raw_obs
-    return ro, raw_obs, episodes
 
 
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation

@@ -24,6 +24,7 @@ from torch.distributions import Normal, kl_divergence
 from common import cli
 from common.gae import compute_gae
 from common.normalizer import RewardScaler, RunningMeanStd
+from common.rollout import collect_rollout
 from common.run import Run, RunArgs
 
 cli.register_goal_tasks()
@@ -76,7 +77,7 @@ class Args(RunArgs):
 
 
 def check_args(args: Args) -> None:
-    """The checks every script shares (``common/cli.py``); PPO-KL has no others."""
+    """Bad input fails here, before anything runs (the shared checks: ``common/cli.py``)."""
     cli.check_common(args)
 
 
@@ -127,54 +128,10 @@ class Agent(nn.Module):
         return Normal(mean, self.actor_logstd.expand_as(mean).exp())
 
 
-# ALGO LOGIC: rollout with the current policy
-def collect_rollout(envs, agent: Agent, norm: RunningMeanStd, raw_obs, num_steps: int,
-                    update_norm: bool = True):  # fmt: skip
-    """Step the vector env ``num_steps`` times with actions sampled from pi_theta.
-
-    Returns ``(rollout, raw_obs, episodes)``: ``rollout`` holds time-major ``(T, N, ...)`` tensors
-    ``obs`` (normalised, as the policy saw them), ``actions``, ``rewards`` (raw), ``terminations``,
-    ``episode_ends`` and ``final_obs`` (normalised true last observation where an episode ended at
-    step t, zeros elsewhere); ``raw_obs`` is where the envs stopped; ``episodes`` lists the finished
-    training episodes as ``(t, env, return, length, success or None)``.
-    """
-    T, N = num_steps, envs.num_envs
-    obs_dim, act_dim = envs.single_observation_space.shape[0], envs.single_action_space.shape[0]
-    low, high = envs.single_action_space.low, envs.single_action_space.high
-    ro = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
-          "actions": torch.zeros((T, N, act_dim)), "rewards": torch.zeros((T, N)),
-          "terminations": torch.zeros((T, N)), "episode_ends": torch.zeros((T, N))}  # fmt: skip
-    episodes = []
-    for t in range(T):
-        if update_norm:
-            norm.update(raw_obs)
-        ro["obs"][t] = norm(raw_obs)
-        with torch.no_grad():
-            ro["actions"][t] = agent.dist(ro["obs"][t]).sample()
-        executed = np.clip(ro["actions"][t].numpy(), low, high)
-        next_raw_obs, reward, terminated, truncated, infos = envs.step(executed)
-        ended = terminated | truncated
-        ro["rewards"][t] = torch.as_tensor(reward)
-        ro["terminations"][t] = torch.as_tensor(terminated)
-        ro["episode_ends"][t] = torch.as_tensor(ended)
-        # SAME_STEP autoreset: where an episode ended, next_raw_obs[i] is the next one's first
-        for i in np.flatnonzero(ended):
-            ro["final_obs"][t, i] = norm(infos["final_obs"][i])
-            info = infos["final_info"]
-            success = float(info["is_success"][i]) if "is_success" in info else None
-            episode_return, length = float(info["episode"]["r"][i]), int(info["episode"]["l"][i])
-            episodes.append((t, i, episode_return, length, success))
-        raw_obs = next_raw_obs
-    return ro, raw_obs, episodes
-
-
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
 def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae_lambda: float):
-    """GAE advantages and the pi_old statistics of a rollout, flattened into one batch.
-
-    V(s_{t+1}) is the next row's value within an episode, V(final_obs) where the episode ended at
-    step t (masked by the termination flag inside ``compute_gae``), V(last_obs) for the last row.
-    """
+    """GAE advantages and pi_old's statistics of a rollout, as one flat batch. V(s_{t+1}) is the
+    next row's V, or V(final_obs) where an episode ended (``compute_gae`` masks terminations)."""
     with torch.no_grad():
         values = agent.get_value(ro["obs"])
         next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
@@ -200,11 +157,8 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
 
 # ALGO LOGIC: the PPO-KL update (eq. 5)
 def ppo_kl_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args):
-    """``update_epochs`` passes of minibatch Adam on eq. 5, then the beta rule.
-
-    ``b`` holds the flattened batch: obs, actions, logprobs, mean, std (of pi_old), advantages,
-    returns. Returns the new beta and the statistics to log.
-    """
+    """``update_epochs`` passes of minibatch Adam on eq. 5 over ``make_batch``'s batch ``b``, then
+    the beta rule. Returns the new beta and the statistics to log."""
     batch_size = b["obs"].shape[0]
     minibatch_size = batch_size // args.num_minibatches
     adv = b["advantages"]
@@ -272,7 +226,8 @@ if __name__ == "__main__":
     reward_scaler = RewardScaler(args.num_envs, args.gamma)
     raw_obs, beta = run.start(
         envs, model=dict(agent=agent, normalizer=norm),
-        training=dict(optimizer=optimizer, reward_scaler=reward_scaler), beta=args.beta_init,
+        training=dict(optimizer=optimizer, reward_scaler=reward_scaler),
+        beta=args.beta_init,
     )  # fmt: skip
 
     with run:  # TRY NOT TO MODIFY: Ctrl-C, kill or a NaN end the run cleanly
@@ -290,8 +245,7 @@ if __name__ == "__main__":
             # ALGO LOGIC: advantages (eq. 3-4) on scaled rewards
             if args.norm_reward:
                 ro["rewards"] = reward_scaler(ro["rewards"], ro["episode_ends"])
-            last_obs = norm(raw_obs)
-            b = make_batch(agent, ro, last_obs, args.gamma, args.gae_lambda)
+            b = make_batch(agent, ro, norm(raw_obs), args.gamma, args.gae_lambda)
 
             # ALGO LOGIC: the PPO-KL update (eq. 5)
             beta, stats = ppo_kl_update(agent, optimizer, b, beta, args)

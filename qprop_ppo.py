@@ -28,6 +28,7 @@ from common import cli, diagnostics
 from common.gae import compute_gae
 from common.her import ReplayBuffer
 from common.normalizer import RewardScaler, RunningMeanStd
+from common.rollout import collect_rollout
 from common.run import Run, RunArgs
 
 cli.register_goal_tasks()
@@ -76,7 +77,7 @@ class Args(RunArgs):
     norm_obs: bool = True
     """normalise observations by running mean and std (saved with the model)"""
     norm_reward: bool = True
-    """divide rewards by the running std of the discounted return (GAE and critic alike)"""
+    """divide rewards by the running std of the discounted return"""
 
     # Q-Prop arguments
     eta_mode: Literal[
@@ -103,7 +104,7 @@ class Args(RunArgs):
 
 
 def check_args(args: Args) -> None:
-    """The checks every script shares (``common/cli.py``), then the critic's."""
+    """Bad input fails here, before anything runs (the shared checks: ``common/cli.py``)."""
     cli.check_common(args)
     cli.check_positive(args, "critic_batch_size", "buffer_size", "critic_learning_rate")
     if not 0.0 < args.tau <= 1.0:
@@ -179,61 +180,10 @@ class QNetwork(nn.Module):
         return self.net(torch.cat([x, a], -1)).squeeze(-1)
 
 
-# ALGO LOGIC: rollout with the current policy
-def collect_rollout(envs, agent: Agent, norm: RunningMeanStd, raw_obs, num_steps: int,
-                    rb: ReplayBuffer, update_norm: bool = True):  # fmt: skip
-    """Step the vector env ``num_steps`` times with actions sampled from pi_theta; every
-    transition also goes raw into the replay buffer ``rb``, with its real next observation.
-
-    Returns ``(rollout, raw_obs, episodes)``: ``rollout`` holds time-major ``(T, N, ...)`` tensors
-    ``obs`` (normalised, as the policy saw them), ``actions``, ``rewards`` (raw), ``terminations``,
-    ``episode_ends`` and ``final_obs`` (normalised true last observation where an episode ended at
-    step t, zeros elsewhere); ``raw_obs`` is where the envs stopped; ``episodes`` lists the finished
-    training episodes as ``(t, env, return, length, success or None)``.
-    """
-    T, N = num_steps, envs.num_envs
-    obs_dim, act_dim = envs.single_observation_space.shape[0], envs.single_action_space.shape[0]
-    low, high = envs.single_action_space.low, envs.single_action_space.high
-    ro = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
-          "actions": torch.zeros((T, N, act_dim)), "rewards": torch.zeros((T, N)),
-          "terminations": torch.zeros((T, N)), "episode_ends": torch.zeros((T, N))}  # fmt: skip
-    episodes = []
-    for t in range(T):
-        if update_norm:
-            norm.update(raw_obs)
-        ro["obs"][t] = norm(raw_obs)
-        with torch.no_grad():
-            ro["actions"][t] = agent.dist(ro["obs"][t]).sample()
-        executed = np.clip(ro["actions"][t].numpy(), low, high)  # the critic learns its Q
-        next_raw_obs, reward, terminated, truncated, infos = envs.step(executed)
-        ended = terminated | truncated
-        ro["rewards"][t] = torch.as_tensor(reward)
-        ro["terminations"][t] = torch.as_tensor(terminated)
-        ro["episode_ends"][t] = torch.as_tensor(ended)
-        real_next_obs = next_raw_obs.copy()
-        # SAME_STEP autoreset: where an episode ended, next_raw_obs[i] is the next one's first
-        for i in np.flatnonzero(ended):
-            real_next_obs[i] = infos["final_obs"][i]
-            ro["final_obs"][t, i] = norm(infos["final_obs"][i])
-            info = infos["final_info"]
-            success = float(info["is_success"][i]) if "is_success" in info else None
-            episode_return, length = float(info["episode"]["r"][i]), int(info["episode"]["l"][i])
-            episodes.append((t, i, episode_return, length, success))
-        rb.add(
-            obs=raw_obs, actions=executed, rewards=reward, next_obs=real_next_obs,
-            terminations=terminated, truncations=truncated,
-        )  # fmt: skip
-        raw_obs = next_raw_obs
-    return ro, raw_obs, episodes
-
-
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
 def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae_lambda: float):
-    """GAE advantages and the pi_old statistics of a rollout, flattened into one batch.
-
-    V(s_{t+1}) is the next row's value within an episode, V(final_obs) where the episode ended at
-    step t (masked by the termination flag inside ``compute_gae``), V(last_obs) for the last row.
-    """
+    """GAE advantages and pi_old's statistics of a rollout, as one flat batch. V(s_{t+1}) is the
+    next row's V, or V(final_obs) where an episode ended (``compute_gae`` masks terminations)."""
     with torch.no_grad():
         values = agent.get_value(ro["obs"])
         next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
@@ -257,14 +207,8 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
         }
 
 
-def sample_replay(
-    rb: ReplayBuffer,
-    norm: RunningMeanStd,
-    reward_scale: float,
-    batch_size: int,
-    count: int = 1,
-    rng: np.random.Generator | None = None,
-) -> list[dict]:
+def sample_replay(rb: ReplayBuffer, norm: RunningMeanStd, reward_scale: float, batch_size: int,
+                  count: int = 1, rng=None) -> list[dict]:  # fmt: skip
     """``count`` replay batches as dicts of tensors, inputs normalised and rewards scaled by the
     current statistics. One draw of ``count * batch_size`` transitions, split: the same
     distribution as ``count`` draws, at a fraction of the cost. ``rng``: not the buffer's own."""
@@ -281,15 +225,8 @@ def sample_replay(
 
 
 # ALGO LOGIC: the critic step (eq. 6-7)
-def critic_step(
-    qf: QNetwork,
-    qf_target: QNetwork,
-    q_optimizer: optim.Optimizer,
-    agent: Agent,
-    data: dict,
-    gamma: float,
-    tau: float,
-) -> tuple[float, float]:
+def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent,
+                data: dict, gamma: float, tau: float) -> tuple[float, float]:  # fmt: skip
     """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
     with torch.no_grad():
         next_q = qf_target(data["next_obs"], agent.actor_mean(data["next_obs"]))  # Q_w'(s', mu(s'))
@@ -306,9 +243,7 @@ def critic_step(
 
 
 # ALGO LOGIC: the control variate (eq. 9) and its weight eta
-def control_variate(
-    qf: QNetwork, agent: Agent, obs: torch.Tensor, actions: torch.Tensor
-) -> torch.Tensor:
+def control_variate(qf: QNetwork, agent: Agent, obs: torch.Tensor, actions: torch.Tensor):
     """A_bar(s, a) = grad_a Q_w(s, a)|_{a = mu(s)} . (a - mu(s))   (eq. 9), no gradient to theta."""
     with torch.no_grad():
         mu = agent.actor_mean(obs)
@@ -318,15 +253,10 @@ def control_variate(
 
 
 def compute_eta(advantages: torch.Tensor, cv: torch.Tensor, mode: str) -> torch.Tensor:
-    """eta_t for every sample of the batch.
-
-    Q-Prop's optimal eta is Cov(A_hat, A_bar) / Var(A_bar). ``batch-conservative`` (eta = 1 if
-    the batch covariance is positive, else 0) and ``batch-aggressive`` (eta = its sign) fix one
-    eta for the whole batch, which keeps eq. 8 unbiased up to the finite-batch estimate of that
-    sign. The paper's ``conservative`` (eta_t = 1 where A_hat_t A_bar_t > 0) and ``aggressive``
-    (eta_t = sign(A_hat_t A_bar_t)) decide per sample: eta_t then depends on the sampled action,
-    E[grad log pi eta_t A_bar_t] is no longer the analytic term, and the gradient is biased.
-    """
+    """eta_t for every sample. ``batch-conservative`` (1 if Cov(A_hat, A_bar) > 0 over the batch,
+    else 0) and ``batch-aggressive`` (its sign) fix one eta per batch: eq. 8 stays unbiased. The
+    paper's ``conservative`` (eta_t = 1 where A_hat_t A_bar_t > 0) and ``aggressive`` (its sign)
+    decide per sample: eta_t then depends on the action, and the gradient is biased."""
     if mode.startswith("batch-"):
         cov = batch_covariance(advantages, cv)
         eta = 1.0 if cov > 0 else (-1.0 if mode == "batch-aggressive" else 0.0)
@@ -360,12 +290,12 @@ def qprop_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, analytic_scale:
 
 # DIAGNOSTICS: does the control variate reduce variance? (logged as qprop/*; changes nothing)
 def gradient_variance(agent: Agent, qf: QNetwork, b: dict, chunks: int = 8, generator=None):
-    """Q-Prop's claim on the batch ``b`` at theta = theta_old, through ``qprop_loss`` itself:
-    the gradient variance (``common/diagnostics.py``) without the control variate (eta = 0) and
-    with it (eta = 1: eq. 8, the same expectation); corr(A_hat, A_bar); V's explained variance.
+    """Q-Prop's claim on the batch ``b`` at theta_old, through ``qprop_loss`` itself: gradient
+    variance over chunks (``common/diagnostics.py``) without the control variate (eta = 0) and
+    with it (eta = 1; eq. 8: the same expectation); corr(A_hat, A_bar); V's explained variance.
     Its draws come from ``generator``, so that measuring does not move the training."""
 
-    def loss(eta: float):
+    def loss(eta: float):  # the estimator at this eta, on the rows ``rows`` of the batch
         def of_rows(rows):
             mb = {key: b[key][rows] for key in ("obs", "actions", "logprobs")}
             mb["adv"] = b["advantages"][rows] - eta * b["cv"][rows]
@@ -374,10 +304,8 @@ def gradient_variance(agent: Agent, qf: QNetwork, b: dict, chunks: int = 8, gene
 
         return of_rows
 
-    params, n = agent.actor_parameters(), len(b["obs"])
-    var, var_cv = diagnostics.gradient_variances(
-        [loss(0.0), loss(1.0)], params, n, chunks, generator
-    )
+    var, var_cv = diagnostics.gradient_variances([loss(0.0), loss(1.0)], agent.actor_parameters(),
+                                                 len(b["obs"]), chunks, generator)  # fmt: skip
     with torch.no_grad():
         values = agent.get_value(b["obs"])
     return {"grad_var": var, "grad_var_cv": var_cv,
@@ -388,13 +316,9 @@ def gradient_variance(agent: Agent, qf: QNetwork, b: dict, chunks: int = 8, gene
 # ALGO LOGIC: the Q-Prop update: PPO-KL (eq. 5) with the control variate (eq. 8)
 def qprop_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args,
                  qf: QNetwork | None = None):  # fmt: skip
-    """``update_epochs`` passes of minibatch Adam on the Q-Prop loss with the KL penalty, then
-    the beta rule.
-
-    ``b`` is ``make_batch``'s batch, with ``cv`` (A_bar) and ``eta`` when a critic is in use.
-    Without a critic, or with eta = 0 everywhere, this is exactly ``ppo_kl_update``. Returns
-    the new beta and the statistics to log.
-    """
+    """``update_epochs`` passes of minibatch Adam on eq. 8 inside eq. 5 over ``make_batch``'s batch
+    ``b`` (with ``cv`` = A_bar and ``eta`` once the critic learns), then the beta rule. Without a
+    critic, or with eta = 0, this is ``ppo_kl_update``. Returns the new beta and the statistics."""
     batch_size = b["obs"].shape[0]
     minibatch_size = batch_size // args.num_minibatches
     use_cv = qf is not None and args.eta_mode != "none"
@@ -468,14 +392,12 @@ if __name__ == "__main__":
     qf = QNetwork(obs_dim, act_dim, args.critic_hidden, low=low, high=high)
     qf_target = copy.deepcopy(qf)
     q_optimizer = optim.Adam(qf.parameters(), lr=args.critic_learning_rate, fused=True)
-    rb = ReplayBuffer(
-        args.buffer_size, args.num_envs, obs_dim, act_dim, seed=run.streams.replay_seed
-    )
+    rb = ReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, run.streams.replay_seed)
     reward_scaler = RewardScaler(args.num_envs, args.gamma)
     raw_obs, beta = run.start(
         envs, model=dict(agent=agent, normalizer=norm, qf=qf, qf_target=qf_target),
-        training=dict(optimizer=optimizer, q_optimizer=q_optimizer, rb=rb,
-                      reward_scaler=reward_scaler),
+        training=dict(optimizer=optimizer, reward_scaler=reward_scaler,
+                      q_optimizer=q_optimizer, rb=rb),
         beta=args.beta_init,
     )  # fmt: skip
 
@@ -499,11 +421,8 @@ if __name__ == "__main__":
 
             # ALGO LOGIC: the critic first (eq. 6-7; Q-Prop's Algorithm 1), so that A_bar, eta
             # and the analytic term use the trained critic
-            learning = (
-                global_step >= args.learning_starts
-                and args.eta_mode != "none"
-                and rb.num_sampleable() > 0
-            )
+            learning = global_step >= args.learning_starts and rb.num_sampleable() > 0
+            learning = learning and args.eta_mode != "none"
             if learning and args.critic_steps > 0:
                 for data in sample_replay(
                     rb, norm, reward_scale, args.critic_batch_size, count=args.critic_steps
@@ -514,8 +433,7 @@ if __name__ == "__main__":
                 run.log({"losses/critic_loss": critic_loss, "losses/q_values": q_values})
 
             # ALGO LOGIC: advantages (eq. 3-4), the control variate (eq. 9) and eta
-            last_obs = norm(raw_obs)
-            b = make_batch(agent, ro, last_obs, args.gamma, args.gae_lambda)
+            b = make_batch(agent, ro, norm(raw_obs), args.gamma, args.gae_lambda)
             if learning:
                 b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
                 b["eta"] = compute_eta(b["advantages"], b["cv"], args.eta_mode)

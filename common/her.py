@@ -195,15 +195,15 @@ class HerReplayBuffer(ReplayBuffer):
         self.next_achieved_goal = np.zeros(shape, np.float32)  # ag_{t+1}
         self.desired_goal = np.zeros(shape, np.float32)
 
-    def add(
-        self, obs, actions, rewards, next_obs, terminations, truncations,
-        achieved_goal, next_achieved_goal, desired_goal,
-    ) -> None:  # fmt: skip
-        """As ``ReplayBuffer.add``, with the goals; ``next_achieved_goal`` is the real next one."""
+    def add(self, obs: dict, actions, rewards, next_obs: dict, terminations, truncations) -> None:
+        """As ``ReplayBuffer.add``, with ``obs`` and ``next_obs`` a goal task's Dicts
+        (``observation``, ``achieved_goal``, ``desired_goal``): ``next_obs`` is the real next."""
         p = self.pos
-        super().add(obs, actions, rewards, next_obs, terminations, truncations)
-        self.achieved_goal[p], self.next_achieved_goal[p] = achieved_goal, next_achieved_goal
-        self.desired_goal[p] = desired_goal
+        super().add(obs["observation"], actions, rewards, next_obs["observation"], terminations,
+                    truncations)  # fmt: skip
+        self.achieved_goal[p] = obs["achieved_goal"]
+        self.next_achieved_goal[p] = next_obs["achieved_goal"]
+        self.desired_goal[p] = obs["desired_goal"]
 
     def sample(self, batch_size: int, rng: np.random.Generator | None = None) -> dict:
         """As ``ReplayBuffer.sample``, plus ``achieved_goal, next_achieved_goal, desired_goal``

@@ -28,15 +28,12 @@ def fill(buffer, lengths_per_env, steps, unfinished_tail=True):
         ended = t + 1 >= length
         goal = np.stack([[e, ep[e], -1] for e in range(num_envs)]).astype(np.float32)
         buffer.add(
-            now,
+            {"observation": now, "achieved_goal": now, "desired_goal": goal},
             np.zeros((num_envs, 1)),
             compute_reward(nxt, goal),
-            nxt,
+            {"observation": nxt, "achieved_goal": nxt, "desired_goal": goal},
             np.zeros(num_envs, bool),
             ended,
-            achieved_goal=now,
-            next_achieved_goal=nxt,
-            desired_goal=goal,
         )
         t = np.where(ended, 0, t + 1)
         k, ep = k + ended, ep + ended
