@@ -100,30 +100,42 @@ def test_no_transition_crosses_a_reset_and_truncation_bootstraps_from_final_obs(
     )
 
 
-def test_same_seed_same_first_update(tmp_path):
-    flags = [
-        "--env-id",
-        "Hopper-v5",
-        "--num-envs",
-        "2",
-        "--num-steps",
-        "64",
-        "--total-timesteps",
-        "128",
-        "--num-minibatches",
-        "2",
-        "--update-epochs",
-        "2",
-        "--eval-episodes",
-        "1",
-    ]
-    logs = []
-    for name in ("a", "b"):
-        assert run_script("ppo_kl.py", tmp_path / name, *flags).returncode == 0
+def test_same_seed_same_run_another_seed_another_run(tmp_path):
+    """Two runs with the same seed log the same value of every scalar at every step (all but the
+    wall-clock charts/SPS) and save the same networks and normaliser, bit for bit, over three
+    updates and two evaluations; a run with another seed differs in its logs and its weights."""
+    flags = ("--env-id", "Hopper-v5", "--num-envs", "2", "--num-steps", "64",
+             "--total-timesteps", "384", "--num-minibatches", "2", "--update-epochs", "2",
+             "--eval-freq", "192", "--eval-episodes", "1", "--save-model")  # fmt: skip
+    runs = []
+    for name, seed in (("a", "1"), ("b", "1"), ("c", "2")):
+        result = run_script("ppo_kl.py", tmp_path / name, "--seed", seed, *flags)
+        assert result.returncode == 0, result.stderr
         (run_dir,) = run_dirs(tmp_path / name)
-        logs.append(scalars(run_dir))
-    for tag in ("losses/policy_loss", "losses/value_loss", "losses/approx_kl"):
-        assert logs[0][tag][0] == logs[1][tag][0], tag
+        logged = {tag: v for tag, v in scalars(run_dir).items() if tag != "charts/SPS"}
+        runs.append((logged, torch.load(run_dir / "model.pt", weights_only=False)))
+    (logs, model), (same_logs, same_model), (other_logs, other_model) = runs
+    assert len(logs["losses/policy_loss"]) == 3 and len(logs["eval/episodic_return"]) == 2
+    assert same_logs == logs  # every tag, every step, every value
+    parts = ("agent", "normalizer", "last_eval_seeds")
+    leaves, same_leaves, other_leaves = (dict(flat_leaves({p: m[p] for p in parts}))
+                                         for m in (model, same_model, other_model))  # fmt: skip
+    assert leaves.keys() == same_leaves.keys() and len(leaves) > 13
+    for key, value in leaves.items():
+        assert torch.equal(torch.as_tensor(same_leaves[key]), torch.as_tensor(value)), key
+    for tag in ("losses/policy_loss", "losses/value_loss", "eval/episodic_return"):
+        assert other_logs[tag] != logs[tag], tag
+    for key in ("agent.actor_mean.0.weight", "agent.critic.0.weight", "normalizer.mean.ndarray"):
+        assert not torch.equal(other_leaves[key], leaves[key]), key
+
+
+def flat_leaves(tree, prefix=""):
+    """(dotted path, leaf) for every leaf of nested dicts (a model.pt's state dicts)."""
+    if isinstance(tree, dict):
+        for key, value in tree.items():
+            yield from flat_leaves(value, f"{prefix}{key}.")
+    else:
+        yield prefix[:-1], tree
 
 
 def test_an_interrupted_run_keeps_its_logs_and_saves_its_model(tmp_path):

@@ -183,10 +183,54 @@ def test_a_wrong_control_variate_or_missing_analytic_term_is_detected(monkeypatc
     assert torch.any((est.mean(0) - true_grad).abs() > 4 * se), mistake
 
 
+@pytest.mark.parametrize(
+    "eta",
+    [torch.full((12,), -1.0), torch.tensor([1.0, 0.0, -1.0] * 4)],
+    ids=["eta=-1", "eta per sample 1, 0, -1"],
+)
+def test_qprop_loss_weights_each_samples_analytic_term_by_its_eta(eta):
+    """qprop_loss = -E[r_t A] - analytic_scale E[eta_t Q_w(s_t, mu(s_t))], value and gradient,
+    against a hand computation (the Gaussian log-density written out, the analytic term summed
+    sample by sample): eta = -1 flips the analytic term, eta_t = 0 drops sample t from it."""
+    torch.manual_seed(0)
+    n, scale = len(eta), 0.7
+    agent, qf = qprop_ppo.Agent(3, 2), qprop_ppo.QNetwork(3, 2, 16)
+    with torch.no_grad():
+        qf.net[-1].bias.fill_(3.0)  # Q_w far from 0: the analytic term's sign shows in the value
+    b = random_batch(n, 3, 2, agent)
+    logprobs = b["logprobs"] + 0.2 * torch.randn(n, generator=torch.Generator().manual_seed(5))
+    mb = {"obs": b["obs"], "actions": b["actions"], "logprobs": logprobs,
+          "adv": b["advantages"], "eta": eta}  # fmt: skip
+    params = agent.actor_parameters()
+
+    def by_hand(eta):
+        mu, log_std = agent.actor_mean(b["obs"]), agent.actor_logstd
+        z = (b["actions"] - mu) / log_std.exp()
+        logp = (-0.5 * z**2 - log_std - 0.5 * np.log(2 * np.pi)).sum(-1)
+        ratio = (logp - logprobs).exp()  # r_t(theta), not 1: theta != theta_old here
+        analytic = sum(e * qf(b["obs"][i : i + 1], mu[i : i + 1])[0] for i, e in enumerate(eta))
+        return -(ratio * b["advantages"]).mean() - scale * analytic / n
+
+    loss = qprop_ppo.qprop_loss(agent, qf, agent.dist(b["obs"]), mb, scale)
+    expected = by_hand(eta)
+    torch.testing.assert_close(loss, expected)
+    grad, expected_grad = (torch.cat([g.flatten() for g in torch.autograd.grad(x, params)])
+                           for x in (loss, expected))  # fmt: skip
+    torch.testing.assert_close(grad, expected_grad)
+    # not vacuous: an analytic term weighted by 1 (eta ignored) is far from it
+    unweighted = by_hand(torch.ones(n))
+    assert (unweighted - expected).abs() > 1.0
+    unweighted_grad = torch.cat([g.flatten() for g in torch.autograd.grad(unweighted, params)])
+    assert not torch.allclose(unweighted_grad, expected_grad, rtol=0.1)
+
+
 @pytest.mark.parametrize("normalization", ["paper", "unbiased"])
 def test_normalization_modes(normalization):
-    """unbiased: the update direction is the raw estimator divided by sigma; paper: the analytic
-    term is not divided."""
+    """One plain SGD step of qprop_update (lr 1, one minibatch, no KL, no clipping, no V) moves
+    the policy by g_lr / sigma + c g_analytic, written out by hand: g_lr the likelihood-ratio
+    gradient of the centred signal A_hat - eta A_bar, g_analytic that of -E[eta Q_w(s, mu(s))],
+    sigma the signal's std. unbiased: c = 1 / sigma, the raw estimator divided by sigma; paper:
+    c = 1, the analytic term not divided."""
     torch.manual_seed(0)
     agent, qf = qprop_ppo.Agent(3, 2), qprop_ppo.QNetwork(3, 2)
     b = random_batch(64, 3, 2, agent)
@@ -195,41 +239,29 @@ def test_normalization_modes(normalization):
     b["eta"] = qprop_ppo.compute_eta(b["advantages"], b["cv"], "ones")
     raw_signal = b["advantages"] - b["eta"] * b["cv"]
     sigma = raw_signal.std()
-    args = qprop_ppo.Args(
-        num_minibatches=1,
-        update_epochs=1,
-        normalization=normalization,
-        max_grad_norm=1e9,
-        vf_coef=0.0,
-    )
+    params = agent.actor_parameters()
 
-    def policy_grad(signal, scale):
-        agent.zero_grad()
-        pi = agent.dist(b["obs"])
-        mb = {key: b[key] for key in ("obs", "actions", "logprobs", "eta")} | {"adv": signal}
-        qprop_ppo.qprop_loss(agent, qf, pi, mb, scale).backward()
-        return torch.cat([p.grad.flatten() for p in agent.actor_mean.parameters()])
+    def grad(loss):
+        grads = torch.autograd.grad(loss, params, retain_graph=True, materialize_grads=True)
+        return torch.cat([g.flatten() for g in grads])
 
-    expected_scale = 1.0 / sigma if normalization == "unbiased" else 1.0
-    expected = policy_grad((raw_signal - raw_signal.mean()) / sigma, expected_scale)
-    unbiased_direction = policy_grad(raw_signal - raw_signal.mean(), 1.0) / sigma
-    if normalization == "unbiased":
-        torch.testing.assert_close(expected, unbiased_direction, rtol=1e-4, atol=1e-6)
-    else:
-        assert not torch.allclose(expected, unbiased_direction, rtol=1e-2)
-    # qprop_update takes one plain SGD step (lr 1) along exactly this loss: compare with a twin
-    twin = copy.deepcopy(agent)
-    opt = torch.optim.SGD(twin.parameters(), lr=1.0)
-    qprop_ppo.qprop_update(twin, opt, b, 0.0, args, qf)
-    step = torch.cat(
-        [
-            (p0 - p1).flatten()
-            for p0, p1 in zip(
-                agent.actor_mean.parameters(), twin.actor_mean.parameters(), strict=True
-            )
-        ]
-    )
-    torch.testing.assert_close(step, expected, rtol=1e-3, atol=1e-5)
+    mu, log_std = agent.actor_mean(b["obs"]), agent.actor_logstd
+    z = (b["actions"] - mu) / log_std.exp()
+    logp = (-0.5 * z**2 - log_std - 0.5 * np.log(2 * np.pi)).sum(-1)  # the Gaussian, by hand
+    ratio = (logp - b["logprobs"]).exp()
+    g_lr = grad(-(ratio * (raw_signal - raw_signal.mean())).mean())
+    g_analytic = grad(-(b["eta"] * qf(b["obs"], mu)).mean())
+    assert g_lr.norm() > 0.1 * g_analytic.norm() > 0, "one term alone would not test the mix"
+    unbiased, paper = (g_lr + g_analytic) / sigma, g_lr / sigma + g_analytic
+    assert not torch.allclose(unbiased, paper, rtol=0.1)
+    expected = unbiased if normalization == "unbiased" else paper
+
+    args = qprop_ppo.Args(num_minibatches=1, update_epochs=1, normalization=normalization,
+                          max_grad_norm=1e9, vf_coef=0.0)  # fmt: skip
+    before = torch.cat([p.detach().flatten() for p in params])
+    qprop_ppo.qprop_update(agent, torch.optim.SGD(agent.parameters(), lr=1.0), b, 0.0, args, qf)
+    after = torch.cat([p.detach().flatten() for p in agent.actor_parameters()])
+    torch.testing.assert_close(before - after, expected, rtol=1e-3, atol=1e-5)
 
 
 def test_eta_modes():
@@ -323,16 +355,28 @@ def test_replay_holds_the_executed_action():
     )
 
 
-def test_gradient_variance_falls_where_the_control_variate_is_right():
-    """Where A_hat is exactly A_bar (a right critic), the control variate takes the
-    likelihood-ratio noise away: the chunk gradients' variance falls."""
+@pytest.mark.parametrize("sign, k", [(1.0, 0.0), (1.0, 1.0), (-1.0, 0.5)])
+def test_gradient_variance_falls_where_the_control_variate_is_right(sign, k):
+    """A_hat = sign A_bar + noise, the noise centred, orthogonal to A_bar on the batch and k times
+    its norm: corr(A_hat, A_bar) is then sign / sqrt(1 + k^2) exactly. Where A_hat is exactly
+    A_bar (a right critic), the control variate takes the likelihood-ratio noise away: the chunk
+    gradients' variance falls; where the critic has the sign wrong, eta = 1 adds variance."""
     torch.manual_seed(0)
     agent, qf = qprop_ppo.Agent(5, 2), qprop_ppo.QNetwork(5, 2, 16)
     b = random_batch(512, 5, 2, agent)
-    b["cv"] = b["advantages"] = qprop_ppo.control_variate(qf, agent, b["obs"], b["actions"])
+    b["cv"] = qprop_ppo.control_variate(qf, agent, b["obs"], b["actions"])
+    cv = b["cv"] - b["cv"].mean()
+    noise = torch.randn(512, generator=torch.Generator().manual_seed(7))
+    noise = noise - noise.mean()
+    noise = noise - (noise @ cv) / (cv @ cv) * cv
+    noise = k * cv.norm() / noise.norm() * noise
+    b["advantages"] = sign * b["cv"] + noise
     d = qprop_ppo.gradient_variance(agent, qf, b)
-    assert d["corr_adv_cv"] == pytest.approx(1.0)
-    assert 0 <= d["grad_var_cv"] < 0.5 * d["grad_var"]
+    assert d["corr_adv_cv"] == pytest.approx(sign / np.sqrt(1 + k**2), abs=1e-4)
+    if sign > 0 and k == 0:
+        assert 0 <= d["grad_var_cv"] < 0.5 * d["grad_var"]
+    elif sign < 0:
+        assert d["grad_var_cv"] > 2 * d["grad_var"]
 
 
 def test_gradient_variance_leaves_the_training_stream_alone():

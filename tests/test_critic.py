@@ -1,0 +1,129 @@
+"""critic_step of qprop_ppo.py and ipg_her.py (eq. 6-7): the TD target
+r + gamma (1 - terminated) Q_w'(s', mu(s')), the gradient step on 0.5 E[(Q_w - target)^2], the
+soft target update w' <- tau w + (1 - tau) w', and IPG's clipping of the targets."""
+
+import copy
+
+import pytest
+import torch
+
+import ipg_her
+import qprop_ppo
+
+OBS, ACT, HIDDEN = 3, 2, 16
+GAMMA, TAU, LR = 0.9, 0.3, 0.1
+
+
+def networks(module):
+    """An agent, a critic and a target network that differs from it (own initialisation, outputs
+    around 5), so that every term of the target matters."""
+    torch.manual_seed(0)
+    agent = module.Agent(OBS, ACT, 16)
+    qf = module.QNetwork(OBS, ACT, HIDDEN)
+    qf_target = module.QNetwork(OBS, ACT, HIDDEN)
+    with torch.no_grad():
+        qf_target.net[-1].bias.fill_(5.0)
+        agent.actor_mean[-1].weight.mul_(100.0)  # mu(s') far from 0 and from the replay actions
+    return agent, qf, qf_target
+
+
+def replay_batch(n=12):
+    g = torch.Generator().manual_seed(1)
+    return {
+        "obs": torch.randn(n, OBS, generator=g),
+        "next_obs": torch.randn(n, OBS, generator=g),
+        "actions": torch.randn(n, ACT, generator=g),
+        "rewards": torch.randn(n, generator=g),
+        "terminations": torch.tensor([1.0, 0.0, 0.0] * (n // 3)),  # a third terminated
+    }
+
+
+def hand_target(agent, qf_target, d, gamma=GAMMA):
+    """r + gamma (1 - terminated) Q_w'(s', mu(s')), row by row."""
+    with torch.no_grad():
+        mu_next = agent.actor_mean(d["next_obs"])
+        rows = []
+        for i in range(len(d["rewards"])):
+            if d["terminations"][i] == 1:
+                rows.append(d["rewards"][i])  # no bootstrap past a termination
+            else:
+                q_next = qf_target(d["next_obs"][i : i + 1], mu_next[i : i + 1])[0]
+                rows.append(d["rewards"][i] + gamma * q_next)
+        return torch.stack(rows)
+
+
+def flat(net):
+    return torch.cat([p.detach().flatten() for p in net.parameters()])
+
+
+def call(module, qf, qf_target, optimizer, agent, d, gamma=GAMMA, tau=TAU, target_range=None):
+    extra = () if target_range is None else (target_range,)
+    return module.critic_step(qf, qf_target, optimizer, agent, d, gamma, tau, *extra)
+
+
+def check_step(module, target_of, target_range=None):
+    """One critic_step with SGD (lr 0.1): the loss and mean Q it returns, and the critic's new
+    weights, are those of 0.5 E[(Q_w(s, a) - y)^2] for y = ``target_of(agent, qf_target, d)``."""
+    agent, qf, qf_target = networks(module)
+    d = replay_batch()
+    y = target_of(agent, qf_target, d)
+    twin = copy.deepcopy(qf)
+    q = twin(d["obs"], d["actions"])
+    loss = 0.5 * ((q - y) ** 2).mean()
+    grads = torch.autograd.grad(loss, list(twin.parameters()))
+    expected = flat(qf) - LR * torch.cat([g.flatten() for g in grads])
+    optimizer = torch.optim.SGD(qf.parameters(), lr=LR)
+    got_loss, got_mean_q = call(
+        module, qf, qf_target, optimizer, agent, d, target_range=target_range
+    )
+    assert got_loss == pytest.approx(loss.item(), rel=1e-5)
+    assert got_mean_q == pytest.approx(q.mean().item(), rel=1e-5)
+    torch.testing.assert_close(flat(qf), expected)
+    return agent, qf_target, d, y
+
+
+@pytest.mark.parametrize("module", [qprop_ppo, ipg_her], ids=["qprop_ppo", "ipg_her"])
+def test_td_target_does_not_bootstrap_past_a_termination(module):
+    agent, qf_target, d, y = check_step(module, hand_target)
+    # not vacuous: bootstrapping at the terminated rows would give targets far from these
+    with torch.no_grad():
+        q_next = qf_target(d["next_obs"], agent.actor_mean(d["next_obs"]))
+    done = d["terminations"] == 1
+    assert torch.all((GAMMA * q_next[done]).abs() > 1.0)
+
+
+@pytest.mark.parametrize("module", [qprop_ppo, ipg_her], ids=["qprop_ppo", "ipg_her"])
+def test_soft_target_update_moves_the_target_a_fraction_tau_toward_the_new_critic(module):
+    """w' <- tau w + (1 - tau) w' (eq. 6), w the critic's weights after its gradient step."""
+    agent, qf, qf_target = networks(module)
+    d = replay_batch()
+    target_before, critic_before = flat(qf_target), flat(qf)
+    optimizer = torch.optim.SGD(qf.parameters(), lr=LR)
+    call(module, qf, qf_target, optimizer, agent, d)
+    critic_after = flat(qf)
+    assert not torch.allclose(critic_after, critic_before), "the critic did not move"
+    torch.testing.assert_close(flat(qf_target), TAU * critic_after + (1 - TAU) * target_before)
+    # and the buffers (action bounds) are the critic's, untouched
+    for b, b_target in zip(qf.buffers(), qf_target.buffers(), strict=True):
+        assert torch.equal(b, b_target)
+
+
+@pytest.mark.parametrize(
+    "target_range",
+    [(-0.5, 4.0), (1.0, 5.0)],
+    ids=["clips-above-and-below", "lifts-every-terminated-row"],
+)
+def test_ipg_targets_are_clipped_to_target_range(target_range):
+    """The clipped target clamp(r + gamma (1 - d) Q_w'(s', mu(s')), lo, hi), both bounds active
+    on this batch, drives the step; the unclipped one would not."""
+
+    def clipped(agent, qf_target, d):
+        return hand_target(agent, qf_target, d).clamp(*target_range)
+
+    _, _, _, y = check_step(ipg_her, clipped, target_range)
+    agent, _, qf_target = networks(ipg_her)
+    raw = hand_target(agent, qf_target, replay_batch())
+    lo, hi = target_range
+    inside = (raw > lo) & (raw < hi)
+    assert (raw < lo).any() and (raw > hi).any() and inside.any(), "a bound never reached"
+    assert not torch.allclose(y, raw)
