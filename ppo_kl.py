@@ -24,7 +24,7 @@ from torch.distributions import Normal, kl_divergence
 from common import cli
 from common.gae import compute_gae
 from common.normalizer import RewardScaler, RunningMeanStd
-from common.rollout import collect_rollout
+from common.rollout import collect_rollout, make_vector_env
 from common.run import Run, RunArgs
 
 cli.register_goal_tasks()
@@ -144,15 +144,11 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
         )  # fmt: skip
         pi_old = agent.dist(ro["obs"])
         act_dim = ro["actions"].shape[-1]
-        return {
-            "obs": ro["obs"].flatten(0, 1),
-            "actions": ro["actions"].flatten(0, 1),
-            "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),
-            "mean": pi_old.mean.reshape(-1, act_dim),
-            "std": pi_old.stddev.reshape(-1, act_dim),
-            "advantages": advantages.flatten(),
-            "returns": (advantages + values).flatten(),
-        }
+        return {"obs": ro["obs"].flatten(0, 1), "actions": ro["actions"].flatten(0, 1),
+                "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),
+                "mean": pi_old.mean.reshape(-1, act_dim), "std": pi_old.stddev.reshape(-1, act_dim),
+                "advantages": advantages.flatten(),
+                "returns": (advantages + values).flatten()}  # fmt: skip
 
 
 # ALGO LOGIC: the PPO-KL update (eq. 5)
@@ -210,11 +206,7 @@ if __name__ == "__main__":
     run = Run(args)  # TRY NOT TO MODIFY: run folder, TensorBoard, seeding (common/run.py)
 
     # ENV SETUP
-    envs = gym.vector.SyncVectorEnv(
-        [make_env(args.env_id) for _ in range(args.num_envs)],
-        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
-    )
-    assert envs.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
+    envs = make_vector_env(make_env(args.env_id), args.num_envs)  # common/rollout.py
     obs_dim = envs.single_observation_space.shape[0]
     act_dim = envs.single_action_space.shape[0]
     envs.single_action_space.seed(run.streams.action_space_seed)

@@ -28,7 +28,7 @@ from common import cli, diagnostics
 from common.gae import compute_gae
 from common.her import ReplayBuffer
 from common.normalizer import RewardScaler, RunningMeanStd
-from common.rollout import collect_rollout
+from common.rollout import collect_rollout, make_vector_env
 from common.run import Run, RunArgs
 
 cli.register_goal_tasks()
@@ -106,11 +106,7 @@ class Args(RunArgs):
 def check_args(args: Args) -> None:
     """Bad input fails here, before anything runs (the shared checks: ``common/cli.py``)."""
     cli.check_common(args)
-    cli.check_positive(args, "critic_batch_size", "buffer_size", "critic_learning_rate")
-    if not 0.0 < args.tau <= 1.0:
-        cli.fail(f"--tau must be in (0, 1], got {args.tau}")
-    if args.critic_steps < 0 or args.learning_starts < 0:
-        cli.fail("--critic-steps and --learning-starts must be non-negative")
+    cli.check_critic(args)
 
 
 # ENV SETUP
@@ -161,9 +157,8 @@ class Agent(nn.Module):
 
 
 class QNetwork(nn.Module):
-    """Critic Q_w(s, a) of the action the environment executes: ``a`` is clipped to the action
-    bounds first, so Q_w is never asked about actions it was not trained on (the targets, the
-    off-policy term and the control variate all see the policy's action clipped)."""
+    """Critic Q_w(s, a) of the action the environment executes: ``a`` is clipped to the bounds
+    first, so Q_w is never asked about actions it was not trained on."""
 
     def __init__(self, obs_dim: int, act_dim: int, hidden: int = 128, low=-np.inf, high=np.inf):
         super().__init__()
@@ -196,22 +191,17 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
         )  # fmt: skip
         pi_old = agent.dist(ro["obs"])
         act_dim = ro["actions"].shape[-1]
-        return {
-            "obs": ro["obs"].flatten(0, 1),
-            "actions": ro["actions"].flatten(0, 1),
-            "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),
-            "mean": pi_old.mean.reshape(-1, act_dim),
-            "std": pi_old.stddev.reshape(-1, act_dim),
-            "advantages": advantages.flatten(),
-            "returns": (advantages + values).flatten(),
-        }
+        return {"obs": ro["obs"].flatten(0, 1), "actions": ro["actions"].flatten(0, 1),
+                "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),
+                "mean": pi_old.mean.reshape(-1, act_dim), "std": pi_old.stddev.reshape(-1, act_dim),
+                "advantages": advantages.flatten(),
+                "returns": (advantages + values).flatten()}  # fmt: skip
 
 
 def sample_replay(rb: ReplayBuffer, norm: RunningMeanStd, reward_scale: float, batch_size: int,
                   count: int = 1, rng=None) -> list[dict]:  # fmt: skip
-    """``count`` replay batches as dicts of tensors, inputs normalised and rewards scaled by the
-    current statistics. One draw of ``count * batch_size`` transitions, split: the same
-    distribution as ``count`` draws, at a fraction of the cost. ``rng``: not the buffer's own."""
+    """``count`` replay batches of tensors, inputs normalised, rewards scaled: one draw of
+    ``count * batch_size`` transitions, split (``rng``: a generator other than the buffer's)."""
     data = rb.sample(batch_size * count, rng)
     tensors = {
         "obs": norm(data["obs"]),
@@ -289,28 +279,15 @@ def qprop_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, analytic_scale:
 
 
 # DIAGNOSTICS: does the control variate reduce variance? (logged as qprop/*; changes nothing)
-def gradient_variance(agent: Agent, qf: QNetwork, b: dict, chunks: int = 8, generator=None):
-    """Q-Prop's claim on the batch ``b`` at theta_old, through ``qprop_loss`` itself: gradient
-    variance over chunks (``common/diagnostics.py``) without the control variate (eta = 0) and
-    with it (eta = 1; eq. 8: the same expectation); corr(A_hat, A_bar); V's explained variance.
-    Its draws come from ``generator``, so that measuring does not move the training."""
+def gradient_variance(agent: Agent, qf: QNetwork, b: dict, chunks=8, generator=None) -> dict:
+    """Q-Prop's claim (``common/diagnostics.py``) through ``qprop_loss`` itself."""
 
-    def loss(eta: float):  # the estimator at this eta, on the rows ``rows`` of the batch
-        def of_rows(rows):
-            mb = {key: b[key][rows] for key in ("obs", "actions", "logprobs")}
-            mb["adv"] = b["advantages"][rows] - eta * b["cv"][rows]
-            mb["eta"] = torch.full_like(mb["adv"], eta)
-            return qprop_loss(agent, qf, agent.dist(mb["obs"]), mb)
+    def estimate(mb: dict, with_cv: bool):  # eq. 8 at eta = 1 or 0, on the raw scale
+        eta = torch.full_like(mb["cv"], float(with_cv))
+        mb |= {"adv": mb["advantages"] - eta * mb["cv"], "eta": eta}
+        return qprop_loss(agent, qf, agent.dist(mb["obs"]), mb)
 
-        return of_rows
-
-    var, var_cv = diagnostics.gradient_variances([loss(0.0), loss(1.0)], agent.actor_parameters(),
-                                                 len(b["obs"]), chunks, generator)  # fmt: skip
-    with torch.no_grad():
-        values = agent.get_value(b["obs"])
-    return {"grad_var": var, "grad_var_cv": var_cv,
-            "corr_adv_cv": diagnostics.correlation(b["advantages"], b["cv"]),
-            "explained_variance": diagnostics.explained_variance(values, b["returns"])}  # fmt: skip
+    return diagnostics.variance_report(agent, b, b["cv"], estimate, chunks, generator)
 
 
 # ALGO LOGIC: the Q-Prop update: PPO-KL (eq. 5) with the control variate (eq. 8)
@@ -375,11 +352,7 @@ if __name__ == "__main__":
     run = Run(args)  # TRY NOT TO MODIFY: run folder, TensorBoard, seeding (common/run.py)
 
     # ENV SETUP
-    envs = gym.vector.SyncVectorEnv(
-        [make_env(args.env_id) for _ in range(args.num_envs)],
-        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,
-    )
-    assert envs.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
+    envs = make_vector_env(make_env(args.env_id), args.num_envs)  # common/rollout.py
     obs_dim = envs.single_observation_space.shape[0]
     act_dim = envs.single_action_space.shape[0]
     envs.single_action_space.seed(run.streams.action_space_seed)
@@ -424,12 +397,12 @@ if __name__ == "__main__":
             learning = global_step >= args.learning_starts and rb.num_sampleable() > 0
             learning = learning and args.eta_mode != "none"
             if learning and args.critic_steps > 0:
-                for data in sample_replay(
-                    rb, norm, reward_scale, args.critic_batch_size, count=args.critic_steps
-                ):
-                    critic_loss, q_values = critic_step(
-                        qf, qf_target, q_optimizer, agent, data, args.gamma, args.tau
-                    )
+                batches = sample_replay(
+                    rb, norm, reward_scale, args.critic_batch_size, args.critic_steps
+                )
+                for data in batches:
+                    critic_loss, q_values = critic_step(qf, qf_target, q_optimizer, agent, data,
+                                                        args.gamma, args.tau)  # fmt: skip
                 run.log({"losses/critic_loss": critic_loss, "losses/q_values": q_values})
 
             # ALGO LOGIC: advantages (eq. 3-4), the control variate (eq. 9) and eta

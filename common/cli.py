@@ -87,6 +87,22 @@ def check_common(args) -> bool:
     return goal_task
 
 
+def refuse_ignored(argv: list[str], ignored: dict[str, str]) -> None:
+    """A flag given on the command line that would change nothing fails: ``{flag: why}``."""
+    for flag in (a.split("=")[0] for a in argv):
+        if flag in ignored:
+            fail(f"{flag} would be ignored ({ignored[flag]}): leave it out")
+
+
+def check_critic(args) -> None:
+    """The checks of an off-policy critic's settings (Q-Prop's and IPG's)."""
+    check_positive(args, "critic_batch_size", "buffer_size", "critic_learning_rate")
+    if not 0.0 < args.tau <= 1.0:
+        fail(f"--tau must be in (0, 1], got {args.tau}")
+    if args.critic_steps < 0 or args.learning_starts < 0:
+        fail("--critic-steps and --learning-starts must be non-negative")
+
+
 def check_task(env_id: str) -> bool:
     """The task is registered, its dependencies are installed, its actions are continuous and
     its observations a vector or a goal Dict (``observation``, ``achieved_goal``,

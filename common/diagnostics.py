@@ -25,6 +25,25 @@ def gradient_variances(losses: list[Callable], params, n: int, chunks: int, gene
             for loss in losses]  # fmt: skip
 
 
+def variance_report(agent, b: dict, cv: torch.Tensor, estimate: Callable, chunks: int,
+                    generator=None) -> dict:  # fmt: skip
+    """Q-Prop's claim, measured on a batch ``b`` at theta = theta_old: ``grad_var`` and
+    ``grad_var_cv``, the gradient variances of ``estimate(mb, False)`` and ``estimate(mb, True)``
+    (a script's own loss on the minibatch ``mb`` of a chunk's rows, without and with the
+    control variate A_bar = ``cv``: eq. 8 at eta = 0 and 1, the same expectation); the
+    correlation ``corr_adv_cv`` of A_hat with A_bar; V's ``explained_variance``."""
+
+    def loss(with_cv: bool):
+        return lambda rows: estimate({k: v[rows] for k, v in b.items()} | {"cv": cv[rows]}, with_cv)
+
+    params = agent.actor_parameters()
+    var, var_cv = gradient_variances([loss(False), loss(True)], params, len(cv), chunks, generator)
+    with torch.no_grad():
+        values = agent.get_value(b["obs"])
+    return {"grad_var": var, "grad_var_cv": var_cv, "corr_adv_cv": correlation(b["advantages"], cv),
+            "explained_variance": explained_variance(values, b["returns"])}  # fmt: skip
+
+
 def correlation(x: torch.Tensor, y: torch.Tensor) -> float:
     return torch.corrcoef(torch.stack([x, y]))[0, 1].item()
 
@@ -32,3 +51,33 @@ def correlation(x: torch.Tensor, y: torch.Tensor) -> float:
 def explained_variance(values: torch.Tensor, returns: torch.Tensor) -> float:
     """1 - Var(R - V) / Var(R): how much of the returns' variance the baseline V explains."""
     return (1 - (returns - values).var() / (returns.var() + 1e-8)).item()
+
+
+def interpolation_report(agent, qf, b: dict, cv, args, off_states, ipg_loss: Callable,
+                         generator=None, chunks: int = 4) -> dict:  # fmt: skip
+    """IPG's update measured on its batch ``b`` before it runs (theta = theta_old), through the
+    script's own ``ipg_loss`` and its weights: the norms of the two weighted terms of the policy
+    gradient, (1 - nu) g_on and b g_off (b = nu, 1 with the control variate), normalised as the
+    update normalises them, and ``effective_nu`` = |off| / (|on| + |off|), the share the
+    off-policy term really has; then ``variance_report`` with eq. 8 at eta = 0 and 1 (raw
+    advantage scale, Q_bar from the mean). ``cv``: A_bar of the batch."""
+    params, adv = agent.actor_parameters(), b["advantages"]
+    signal = adv - cv if args.use_cv else adv
+    sigma = signal.std() + 1e-8 if args.norm_adv else torch.ones(())
+    if args.norm_adv:
+        signal = (signal - signal.mean()) / sigma
+    off_scale = 1.0 / sigma if args.normalization == "unbiased" else 1.0  # as the update
+    on_term, off_term = ipg_loss(agent, qf, agent.dist(b["obs"]), b, signal, off_states,
+                                 args.q_bar, generator)  # fmt: skip
+    on = (1.0 - args.nu) * flat_grad(on_term, params).norm().item()
+    off_weight = 1.0 if args.use_cv else args.nu
+    off = off_weight * flat_grad(off_term * off_scale, params).norm().item()
+
+    def estimate(mb: dict, with_cv: bool):  # eq. 8 at eta = 1 or 0, on the raw scale
+        adv = mb["advantages"] - mb["cv"] if with_cv else mb["advantages"]
+        on_term, off_term = ipg_loss(agent, qf, agent.dist(mb["obs"]), mb, adv,
+                                     mb["obs"] if with_cv else None)  # fmt: skip
+        return on_term + off_term
+
+    measured = {"on_grad_norm": on, "off_grad_norm": off, "effective_nu": off / (on + off + 1e-12)}
+    return measured | variance_report(agent, b, cv, estimate, chunks, generator)

@@ -34,6 +34,7 @@ write position wraps round onto a stored episode, that whole episode stops being
 
 from collections.abc import Callable
 
+import gymnasium as gym
 import numpy as np
 
 GOAL_SELECTION_STRATEGIES = ("future", "final", "episode")
@@ -237,3 +238,27 @@ class HerReplayBuffer(ReplayBuffer):
                 batch["next_achieved_goal"][relabel], new_goal
             )
         return batch
+
+
+def goal_task_reward(env_id: str, her: bool = True) -> Callable:
+    """A goal task's reward ``(achieved_goal, desired_goal) -> r``, vectorised, for relabelling.
+    HER keeps a transition's stored ``terminated``: a task whose termination depends on the goal
+    (``compute_terminated``) would get wrong flags on relabelled transitions, and is refused."""
+    env = gym.make(env_id).unwrapped  # gymnasium 1.x wrappers do not forward attributes
+    goal = np.zeros(env.observation_space["desired_goal"].shape)
+    if her and hasattr(env, "compute_terminated"):
+        if any(np.any(env.compute_terminated(g, goal, {})) for g in (goal, goal + 1e3)):
+            raise ValueError(
+                f"{env_id} terminates depending on the goal; HER would keep the "
+                "stored termination of a relabelled transition: use --no-her"
+            )
+    return lambda achieved_goal, desired_goal: env.compute_reward(achieved_goal, desired_goal, None)
+
+
+def sparse_return_range(compute_reward, goal_dim: int, gamma: float) -> tuple | None:
+    """[-1/(1-gamma), 0], the returns Fetch's reward allows (0 where the goal is reached, -1
+    elsewhere), if ``compute_reward`` is that reward; None for any other (PointMaze's is 0/+1)."""
+    goal = np.zeros((2, goal_dim))
+    far = goal + np.array([[0.0], [1e3]])
+    rewards = np.asarray(compute_reward(far, goal), np.float64)
+    return (-1.0 / (1.0 - gamma), 0.0) if rewards.tolist() == [0.0, -1.0] else None

@@ -9,8 +9,17 @@ crosses a reset.
 
 import copy
 
+import gymnasium as gym
 import numpy as np
 import torch
+
+
+def make_vector_env(make_env, num_envs: int) -> gym.vector.SyncVectorEnv:
+    """``num_envs`` environments ``make_env()``, stepped in turn, resetting SAME_STEP."""
+    envs = gym.vector.SyncVectorEnv([make_env] * num_envs,
+                                    autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)  # fmt: skip
+    assert envs.metadata["autoreset_mode"] == gym.vector.AutoresetMode.SAME_STEP
+    return envs
 
 
 def collect_rollout(envs, agent, norm, raw_obs, num_steps: int, rb=None, update_norm=True):

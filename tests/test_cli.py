@@ -59,8 +59,11 @@ def test_common_checks(capsys, script, argv, needle):
         ("ipg_her", ["--tau", "0"], "--tau"),
         ("ipg_her", ["--her-goal-selection-strategy", "foo"], "foo"),
         ("ipg_her", ["--off-policy-batch-size", "0"], "--off-policy-batch-size"),
-        ("ipg_her", ["--env-id", "Hopper-v5", "--her"], "--her needs a goal task"),
-        ("ipg_her", ["--env-id", "Hopper-v5", "--her-n-sampled-goal", "2"], "goal task"),
+        ("ipg_her", ["--env-id", "Hopper-v5", "--her"], "--her would be ignored"),
+        ("ipg_her", ["--env-id", "Hopper-v5", "--her-n-sampled-goal", "2"], "not a goal task"),
+        ("ipg_her", ["--no-her", "--her-n-sampled-goal", "2"], "ignored (--no-her)"),
+        ("ipg_her", ["--no-her", "--her-goal-selection-strategy=final"], "ignored (--no-her)"),
+        ("ipg_her", ["--off-policy-states", "batch", "--off-policy-batch-size", "64"], "ignored"),
     ],
 )
 def test_algorithm_checks(capsys, script, argv, needle):

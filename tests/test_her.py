@@ -180,3 +180,24 @@ def test_state_dict_holds_the_stored_rows_only_even_when_the_sampler_cache_has_t
         copy = make(size=20, num_envs=2)
         copy.load_state_dict(saved)
         np.testing.assert_array_equal(copy.sample(32)["obs"], expected)
+
+
+def test_hindsight_refuses_a_task_whose_termination_depends_on_the_goal():
+    """HER keeps a relabelled transition's stored ``terminated``: right where termination never
+    depends on the goal (Fetch), wrong where reaching the goal ends the episode (PointMaze with
+    continuing_task=False), which is refused; without HER the goals are never relabelled."""
+    import gymnasium as gym
+
+    from common import cli
+    from common.her import goal_task_reward
+
+    cli.register_goal_tasks()
+    spec = gym.spec("PointMaze_UMaze-v3")
+    kwargs = {**spec.kwargs, "continuing_task": False}
+    gym.register("PointMazeEnding-v3", spec.entry_point, max_episode_steps=300, kwargs=kwargs)
+    with pytest.raises(ValueError, match="terminates depending on the goal"):
+        goal_task_reward("PointMazeEnding-v3")
+    reward = goal_task_reward("PointMazeEnding-v3", her=False)
+    assert reward(np.zeros((2, 2)), np.array([[0.0, 0.0], [5.0, 5.0]])).tolist() == [1.0, 0.0]
+    fetch = goal_task_reward("FetchReach-v4")
+    assert fetch(np.zeros((2, 3)), np.array([[0.0, 0, 0], [1.0, 0, 0]])).tolist() == [0.0, -1.0]

@@ -1,5 +1,7 @@
 """ipg_her.py: the nu = 0 identity with PPO-KL, the off-policy term, replay, smoke, bad input."""
 
+import itertools
+
 import numpy as np
 import pytest
 import torch
@@ -19,8 +21,14 @@ from toy_envs import counting_envs
 import ipg_her
 import ppo_kl
 from benchmarks import report
-from common.her import HerReplayBuffer
+from common import diagnostics
+from common.her import HerReplayBuffer, sparse_return_range
 from common.normalizer import InputNormalizer
+
+
+def replay_of(states):
+    """An ``ipg_update`` replay whose every batch holds ``states``."""
+    return lambda: itertools.repeat({"obs": states})
 
 
 def test_nu_zero_without_cv_is_the_ppo_kl_update():
@@ -37,7 +45,7 @@ def test_nu_zero_without_cv_is_the_ppo_kl_update():
         kl_target=0.01,
     )
     qf = ipg_her.QNetwork(5, 2, 32)
-    replay_states = lambda: torch.randn(16, 5)  # never called with nu = 0
+    replay_states = replay_of(torch.randn(16, 5))  # never called with nu = 0
     betas = []
     for agent, update in [
         (agent_ppo, lambda opt: ppo_kl.ppo_kl_update(agent_ppo, opt, b, 1.0, ppo_kl.Args(**flags))),
@@ -73,7 +81,7 @@ def test_off_policy_term_moves_the_mean_up_the_critic():
         before = qf(states, agent.actor_mean(states)).mean()
     args = ipg_her.Args(nu=1.0, num_minibatches=2, update_epochs=5, beta_init=0.0)
     optimizer = torch.optim.Adam(agent.parameters(), lr=1e-3)
-    ipg_her.ipg_update(agent, optimizer, b, 0.0, args, qf, lambda: states)
+    ipg_her.ipg_update(agent, optimizer, b, 0.0, args, qf, replay_of(states))
     with torch.no_grad():
         after = qf(states, agent.actor_mean(states)).mean()
     assert after > before + 1e-3
@@ -100,7 +108,7 @@ def test_at_nu_one_sigma_follows_only_the_kl_penalty_unless_q_bar_is_sampled(q_b
     log_std = [agent.actor_logstd.detach().clone()]
     for seed in range(5):  # five updates, each from the policy the last one left
         b = random_batch(64, 3, 2, agent, seed)
-        ipg_her.ipg_update(agent, optimizer, b, 1.0, args, qf, lambda: states)
+        ipg_her.ipg_update(agent, optimizer, b, 1.0, args, qf, replay_of(states))
         log_std.append(agent.actor_logstd.detach().clone())
     steps = torch.diff(torch.cat(log_std), dim=0)
     assert (steps > 0).all() if q_bar == "mean" else (steps < 0).all()
@@ -212,7 +220,7 @@ def policy_after_one_update(c, nu, use_cv, normalization, q_bar="sample"):
                         num_minibatches=2, update_epochs=2)  # fmt: skip
     optimizer = torch.optim.Adam(agent.parameters(), lr=1e-3)
     torch.manual_seed(1)
-    ipg_her.ipg_update(agent, optimizer, b, 1.0, args, q, lambda: states)
+    ipg_her.ipg_update(agent, optimizer, b, 1.0, args, q, replay_of(states))
     return torch.cat([p.detach().flatten() for p in agent.actor_parameters()])
 
 
@@ -278,26 +286,41 @@ def test_critic_targets_are_clipped_only_where_the_reward_is_fetchs_0_or_minus_1
     reward would have its positive targets clipped to 0, silently: no range there."""
     reached = lambda ag, g: (np.linalg.norm(ag - g, axis=-1) < 0.05).astype(np.float32)
     fetch = lambda ag, g: reached(ag, g) - 1.0
-    assert ipg_her.sparse_return_range(fetch, 3, 0.98) == pytest.approx((-50.0, 0.0))
-    assert ipg_her.sparse_return_range(reached, 2, 0.98) is None
+    assert sparse_return_range(fetch, 3, 0.98) == pytest.approx((-50.0, 0.0))
+    assert sparse_return_range(reached, 2, 0.98) is None
 
 
 def test_gradient_diagnostics_measure_the_two_terms_and_the_control_variates_variance():
-    """effective nu is 0 at nu = 0 and 1 at nu = 1; where A_hat is exactly the control variate
-    A_bar (a critic that is right), the control variate removes the likelihood-ratio noise and
-    the gradient variance over chunks falls, and A_hat correlates with A_bar perfectly."""
+    """The norms of the update's two weighted terms, and effective nu = |off| / (|on| + |off|),
+    against a hand computation at nu = 0.3; A_hat = A_bar + noise orthogonal to it with k times
+    its norm has corr(A_hat, A_bar) = 1/sqrt(1 + k^2) exactly; with k = 0 (a right critic) the
+    control variate removes the likelihood-ratio noise and the gradient variance falls."""
     torch.manual_seed(0)
     agent, qf = ipg_her.Agent(5, 2, hidden=16), ipg_her.QNetwork(5, 2, 16)
     b = random_batch(400, 5, 2, agent)
-    b["advantages"] = ipg_her.control_variate(qf, agent, b["obs"], b["actions"])
-    states = torch.randn(64, 5)
-    for nu, expected in ((0.0, 0.0), (1.0, 1.0)):
-        d = ipg_her.gradient_diagnostics(agent, qf, b, ipg_her.Args(nu=nu), states, chunks=8)
-        assert d["effective_nu"] == pytest.approx(expected)
-        assert d["on_grad_norm" if nu == 0 else "off_grad_norm"] > 0
-    assert d["corr_adv_cv"] == pytest.approx(1.0)
+    cv = ipg_her.control_variate(qf, agent, b["obs"], b["actions"])
+    centred = cv - cv.mean()
+    states, params, args = torch.randn(64, 5), agent.actor_parameters(), ipg_her.Args(nu=0.3)
+    for k in (0.0, 2.0):
+        noise = torch.randn(400, generator=torch.Generator().manual_seed(1))
+        noise -= noise.mean()
+        noise -= (noise @ centred) / (centred @ centred) * centred  # orthogonal to A_bar
+        b["advantages"] = cv + k * centred.norm() / noise.norm() * noise
+        d = diagnostics.interpolation_report(agent, qf, b, cv, args, states, ipg_her.ipg_loss)
+        assert d["corr_adv_cv"] == pytest.approx(1 / np.sqrt(1 + k**2), abs=1e-4)
+        adv = b["advantages"]
+        sigma = adv.std() + 1e-8
+        ratio = (agent.dist(b["obs"]).log_prob(b["actions"]).sum(-1) - b["logprobs"]).exp()
+        g_on = diagnostics.flat_grad(-(ratio * (adv - adv.mean()) / sigma).mean(), params)
+        g_off = diagnostics.flat_grad(-qf(states, agent.actor_mean(states)).mean() / sigma, params)
+        on, off = 0.7 * g_on.norm().item(), 0.3 * g_off.norm().item()
+        assert d["on_grad_norm"] == pytest.approx(on, rel=1e-4)
+        assert d["off_grad_norm"] == pytest.approx(off, rel=1e-4)
+        assert d["effective_nu"] == pytest.approx(off / (on + off), rel=1e-4)
+        assert np.isfinite(d["explained_variance"])
+    b["advantages"] = cv
+    d = diagnostics.interpolation_report(agent, qf, b, cv, args, states, ipg_her.ipg_loss, chunks=8)
     assert d["grad_var_cv"] < 0.5 * d["grad_var"]
-    assert np.isfinite(d["explained_variance"])
 
 
 def test_diagnostics_do_not_change_the_training(tmp_path):
