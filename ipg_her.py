@@ -306,7 +306,7 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
     own states or ``replay()``'s. With nu = 0 and no control variate this is ``ppo_kl_update``."""
     batch_size = b["obs"].shape[0]
     minibatch_size = batch_size // args.num_minibatches
-    adv = b["advantages"] - b["cv"] if args.use_cv else b["advantages"]  # A_hat (- A_bar)
+    adv = b["advantages"] - b["cv"] if "cv" in b else b["advantages"]  # A_hat (- A_bar)
     off_scale, signal_std = 1.0, adv.std()  # on the raw scale
     if args.norm_adv:
         adv = (adv - adv.mean()) / (signal_std + 1e-8)
@@ -434,7 +434,7 @@ if __name__ == "__main__":
 
             # ALGO LOGIC: advantages (eq. 3-4) and the control variate (eq. 9)
             b = make_batch(agent, ro, norm(raw_obs), args.gamma, args.gae_lambda)
-            if args.use_cv:
+            if args.use_cv and learning:  # with the critic and the term that offsets it (eq. 8)
                 b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
                 run.log({"ipg/cv_mean": b["cv"].mean().item()})
             diagnose = args.diagnostics_every and (iteration - 1) % args.diagnostics_every == 0

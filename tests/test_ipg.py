@@ -379,3 +379,19 @@ def test_resume_goes_on_deterministically_and_an_interrupted_stretch_is_not_logg
     assert report.read_run(run_dir)["wall_time"] < max(times) - min(times) - 1  # pauses left out
     result = run_script("ipg_her.py", tmp_path, *longer, "--nu", "0.8")
     assert_clean_error(result, "--nu 0.5", "now 0.8")
+
+
+def test_the_control_variate_waits_for_the_critic(tmp_path):
+    """Before the critic learns (learning_starts), the off-policy term that offsets A_bar is off,
+    so A_bar must be off too: with --use-cv the run is the run without it, scalar for scalar (it
+    subtracted an untrained critic's A_bar, uncompensated)."""
+    flags = ("--seed", "2", "--total-timesteps", "1024",
+             "--num-envs", "2", "--num-steps", "256", "--num-minibatches", "4",
+             "--update-epochs", "2", "--nu", "0.5", "--learning-starts", "100000",
+             "--eval-freq", "0", "--eval-episodes", "1", "--eval-workers", "0")  # fmt: skip
+    runs = []
+    for extra in ((), ("--use-cv",)):
+        _, tags = smoke_run("ipg_her.py", tmp_path / str(len(runs)), "Hopper-v5", *flags, *extra)
+        runs.append({tag: v for tag, v in tags.items() if tag != "charts/SPS"})
+    assert "losses/policy_loss" in runs[0] and "ipg/cv_mean" not in runs[1]
+    assert runs[0] == runs[1]
