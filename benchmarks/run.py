@@ -146,7 +146,9 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         # nu = 1 with Q_bar sampled: sigma then learns from the critic, as the likelihood-ratio
         # term lets it at nu < 1 (with Q_bar from the mean, nothing but the KL penalty moves it)
         grid.append(fetch("ipg_her_nu1.0_b100_qsample", "ipg_her.py", "--q-bar", "sample", *every))
-        # Hopper, 300k steps: ipg_her with PPO-KL's settings (at nu = 0 it is ppo_kl.py) and a
+        # Hopper, 300k steps: ipg_her with PPO-KL's batch, learning rate and gamma (at nu = 0 it is
+        # PPO-KL, but not ppo_kl.py's defaults: KL target 0.01, initial log std 0 not -0.5, input
+        # clip 5 not 10, no learning-rate annealing, 20 evaluation episodes not 10), and a
         # critic trained about once per environment step after a real warm-up; the IPG paper's
         # best variant (nu 0.2, control variate, on-policy states); Q-Prop with per-sample and
         # batch eta and with 8x more critic work after a warm-up
