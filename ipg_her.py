@@ -134,18 +134,7 @@ def check_args(args: Args, argv: list[str]) -> None:
     cli.check_positive(args, "off_policy_batch_size")
     if not 0.0 <= args.nu <= 1.0 or args.her_n_sampled_goal < 0:
         cli.fail(f"--nu must be in [0, 1] (got {args.nu}) and --her-n-sampled-goal non-negative")
-    her_flags = ("--her-n-sampled-goal", "--her-goal-selection-strategy")
-    ignored = dict.fromkeys(her_flags, "--no-her") if not args.her else {}  # flag: why ignored
-    if not goal_task:
-        ignored = dict.fromkeys(("--her", *her_flags), f"{args.env_id} is not a goal task")
-    if args.off_policy_states == "batch":
-        ignored["--off-policy-batch-size"] = "--off-policy-states batch"
-    cli.refuse_ignored(argv, ignored)
-    if goal_task and args.her:
-        try:
-            goal_task_reward(args.env_id)
-        except ValueError as e:
-            cli.fail(str(e))
+    cli.check_her(args, argv, goal_task)  # HER's flags, and tasks HER cannot serve
 
 
 # ENV SETUP
@@ -292,8 +281,7 @@ def ipg_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, adv=None, s_off=N
     if s_off is not None:
         a_off = agent.actor_mean(s_off)
         if q_bar == "sample":  # a = mu + sigma eps: the gradient reaches sigma too
-            noise = torch.randn(a_off.shape, generator=generator)
-            a_off = a_off + agent.actor_logstd.exp() * noise
+            a_off = a_off + agent.actor_logstd.exp() * torch.randn(a_off.shape, generator=generator)
         off_term = -qf(s_off, a_off).mean()  # -Q_bar_w(s), s ~ beta (eq. 10)
     return on_term, off_term
 
@@ -315,7 +303,7 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
     off_weight = 1.0 if args.use_cv else args.nu  # b = 1 with the control variate
     use_off_policy = qf is not None and off_weight > 0
     from_replay = use_off_policy and args.off_policy_states == "replay"
-    replayed = iter(replay() if from_replay else ())  # drawn only when the update uses them
+    replayed = iter(replay() if from_replay else ())  # drawn only if the update uses them
     pi_old = Normal(b["mean"], b["std"])
     actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
     for epoch in range(args.update_epochs):
@@ -439,10 +427,11 @@ if __name__ == "__main__":
                 run.log({"ipg/cv_mean": b["cv"].mean().item()})
             diagnose = args.diagnostics_every and (iteration - 1) % args.diagnostics_every == 0
             if learning and diagnose:
-                off_states = b["obs"]  # DIAGNOSTICS before the update (ipg/*; own streams)
+                # DIAGNOSTICS: what the mixture does, before the update (ipg/*; own streams)
+                off_states = b["obs"]
                 if args.off_policy_states == "replay":
-                    off_states = sample_replay(rb, norm, 1.0, args.off_policy_batch_size,
-                                               rng=run.diagnostics_rng)[0]["obs"]  # fmt: skip
+                    off_states = sample_replay(rb, norm, 1.0, args.off_policy_batch_size, 1,
+                                               run.diagnostics_rng)[0]["obs"]  # fmt: skip
                 cv = b["cv"] if args.use_cv else control_variate(qf, agent, b["obs"], b["actions"])
                 measured = diagnostics.interpolation_report(
                     agent, qf, b, cv, args, off_states, ipg_loss, run.diagnostics_generator

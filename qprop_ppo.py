@@ -278,18 +278,6 @@ def qprop_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, analytic_scale:
     return loss
 
 
-# DIAGNOSTICS: does the control variate reduce variance? (logged as qprop/*; changes nothing)
-def gradient_variance(agent: Agent, qf: QNetwork, b: dict, chunks=8, generator=None) -> dict:
-    """Q-Prop's claim (``common/diagnostics.py``) through ``qprop_loss`` itself."""
-
-    def estimate(mb: dict, with_cv: bool):  # eq. 8 at eta = 1 or 0, on the raw scale
-        eta = torch.full_like(mb["cv"], float(with_cv))
-        mb |= {"adv": mb["advantages"] - eta * mb["cv"], "eta": eta}
-        return qprop_loss(agent, qf, agent.dist(mb["obs"]), mb)
-
-    return diagnostics.variance_report(agent, b, b["cv"], estimate, chunks, generator)
-
-
 # ALGO LOGIC: the Q-Prop update: PPO-KL (eq. 5) with the control variate (eq. 8)
 def qprop_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args,
                  qf: QNetwork | None = None):  # fmt: skip
@@ -411,7 +399,10 @@ if __name__ == "__main__":
                 b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
                 b["eta"] = compute_eta(b["advantages"], b["cv"], args.eta_mode)
                 cov = batch_covariance(b["advantages"], b["cv"])
-                measured = gradient_variance(agent, qf, b, generator=run.diagnostics_generator)
+                # DIAGNOSTICS: does the control variate reduce variance? (qprop/*; own streams)
+                measured = diagnostics.qprop_report(
+                    agent, qf, b, qprop_loss, run.diagnostics_generator
+                )
                 measured |= {"eta": b["eta"].mean().item(), "cov": cov}
                 run.log({f"qprop/{key}": value for key, value in measured.items()})
 

@@ -14,6 +14,8 @@ from typing import NoReturn, TypeVar
 import gymnasium as gym
 import tyro
 
+from common.her import hindsight_refusal
+
 A = TypeVar("A")
 
 
@@ -92,6 +94,20 @@ def refuse_ignored(argv: list[str], ignored: dict[str, str]) -> None:
     for flag in (a.split("=")[0] for a in argv):
         if flag in ignored:
             fail(f"{flag} would be ignored ({ignored[flag]}): leave it out")
+
+
+def check_her(args, argv: list[str], goal_task: bool) -> None:
+    """IPG's flags that would be ignored (HER's without goals or with --no-her, the replay batch
+    size with on-policy states) are refused, and so is HER on a task it cannot serve."""
+    her_flags = ("--her-n-sampled-goal", "--her-goal-selection-strategy")
+    ignored = dict.fromkeys(her_flags, "--no-her") if not args.her else {}  # flag: why ignored
+    if not goal_task:
+        ignored = dict.fromkeys(("--her", *her_flags), f"{args.env_id} is not a goal task")
+    if args.off_policy_states == "batch":
+        ignored["--off-policy-batch-size"] = "--off-policy-states batch"
+    refuse_ignored(argv, ignored)
+    if goal_task and args.her and (why := hindsight_refusal(args.env_id)):
+        fail(why)
 
 
 def check_critic(args) -> None:

@@ -81,3 +81,15 @@ def interpolation_report(agent, qf, b: dict, cv, args, off_states, ipg_loss: Cal
 
     measured = {"on_grad_norm": on, "off_grad_norm": off, "effective_nu": off / (on + off + 1e-12)}
     return measured | variance_report(agent, b, cv, estimate, chunks, generator)
+
+
+def qprop_report(agent, qf, b: dict, qprop_loss: Callable, generator=None, chunks: int = 8):
+    """Q-Prop's claim (``variance_report``) through the script's own ``qprop_loss``, on its
+    batch ``b`` (with ``cv`` = A_bar) before the update."""
+
+    def estimate(mb: dict, with_cv: bool):  # eq. 8 at eta = 1 or 0, on the raw scale
+        eta = torch.full_like(mb["cv"], float(with_cv))
+        mb |= {"adv": mb["advantages"] - eta * mb["cv"], "eta": eta}
+        return qprop_loss(agent, qf, agent.dist(mb["obs"]), mb)
+
+    return variance_report(agent, b, b["cv"], estimate, chunks, generator)

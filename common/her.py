@@ -240,18 +240,25 @@ class HerReplayBuffer(ReplayBuffer):
         return batch
 
 
-def goal_task_reward(env_id: str, her: bool = True) -> Callable:
-    """A goal task's reward ``(achieved_goal, desired_goal) -> r``, vectorised, for relabelling.
-    HER keeps a transition's stored ``terminated``: a task whose termination depends on the goal
-    (``compute_terminated``) would get wrong flags on relabelled transitions, and is refused."""
+def hindsight_refusal(env_id: str) -> str | None:
+    """Why HER cannot serve this goal task, or None. HER keeps a transition's stored
+    ``terminated``: where termination depends on the goal (``compute_terminated``, e.g. PointMaze
+    with continuing_task=False), relabelled transitions would carry wrong flags."""
     env = gym.make(env_id).unwrapped  # gymnasium 1.x wrappers do not forward attributes
     goal = np.zeros(env.observation_space["desired_goal"].shape)
-    if her and hasattr(env, "compute_terminated"):
+    if hasattr(env, "compute_terminated"):
         if any(np.any(env.compute_terminated(g, goal, {})) for g in (goal, goal + 1e3)):
-            raise ValueError(
-                f"{env_id} terminates depending on the goal; HER would keep the "
-                "stored termination of a relabelled transition: use --no-her"
-            )
+            return (f"{env_id} terminates depending on the goal; HER would keep the stored "
+                    "termination of a relabelled transition: use --no-her")  # fmt: skip
+    return None
+
+
+def goal_task_reward(env_id: str, her: bool = True) -> Callable:
+    """A goal task's reward ``(achieved_goal, desired_goal) -> r``, vectorised, for relabelling;
+    a task ``hindsight_refusal`` refuses raises ``ValueError`` (unless ``her`` is off)."""
+    if her and (why := hindsight_refusal(env_id)):
+        raise ValueError(why)
+    env = gym.make(env_id).unwrapped
     return lambda achieved_goal, desired_goal: env.compute_reward(achieved_goal, desired_goal, None)
 
 

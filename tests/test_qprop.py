@@ -17,6 +17,7 @@ from toy_envs import counting_envs
 
 import ppo_kl
 import qprop_ppo
+from common import diagnostics
 from common.normalizer import RunningMeanStd
 
 
@@ -356,7 +357,7 @@ def test_replay_holds_the_executed_action():
 
 
 @pytest.mark.parametrize("sign, k", [(1.0, 0.0), (1.0, 1.0), (-1.0, 0.5)])
-def test_gradient_variance_falls_where_the_control_variate_is_right(sign, k):
+def test_qprop_report_falls_where_the_control_variate_is_right(sign, k):
     """A_hat = sign A_bar + noise, the noise centred, orthogonal to A_bar on the batch and k times
     its norm: corr(A_hat, A_bar) is then sign / sqrt(1 + k^2) exactly. Where A_hat is exactly
     A_bar (a right critic), the control variate takes the likelihood-ratio noise away: the chunk
@@ -371,7 +372,7 @@ def test_gradient_variance_falls_where_the_control_variate_is_right(sign, k):
     noise = noise - (noise @ cv) / (cv @ cv) * cv
     noise = k * cv.norm() / noise.norm() * noise
     b["advantages"] = sign * b["cv"] + noise
-    d = qprop_ppo.gradient_variance(agent, qf, b)
+    d = diagnostics.qprop_report(agent, qf, b, qprop_ppo.qprop_loss)
     assert d["corr_adv_cv"] == pytest.approx(sign / np.sqrt(1 + k**2), abs=1e-4)
     if sign > 0 and k == 0:
         assert 0 <= d["grad_var_cv"] < 0.5 * d["grad_var"]
@@ -379,7 +380,7 @@ def test_gradient_variance_falls_where_the_control_variate_is_right(sign, k):
         assert d["grad_var_cv"] > 2 * d["grad_var"]
 
 
-def test_gradient_variance_leaves_the_training_stream_alone():
+def test_qprop_report_leaves_the_training_stream_alone():
     """The diagnostics draw their chunks from their own generator: measuring does not move the
     global torch stream the training samples from (it did: turning them on changed training)."""
     torch.manual_seed(0)
@@ -387,7 +388,9 @@ def test_gradient_variance_leaves_the_training_stream_alone():
     b = random_batch(64, 5, 2, agent)
     b["cv"] = qprop_ppo.control_variate(qf, agent, b["obs"], b["actions"])
     state = torch.get_rng_state()
-    qprop_ppo.gradient_variance(agent, qf, b, generator=torch.Generator().manual_seed(1))
+    diagnostics.qprop_report(agent, qf, b, qprop_ppo.qprop_loss, torch.Generator().manual_seed(1))
     assert torch.equal(torch.get_rng_state(), state)
-    qprop_ppo.gradient_variance(agent, qf, b)  # without one: the global stream moves
+    diagnostics.qprop_report(
+        agent, qf, b, qprop_ppo.qprop_loss
+    )  # without one: the global stream moves
     assert not torch.equal(torch.get_rng_state(), state)
