@@ -339,7 +339,7 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
     stats = {"losses/policy_loss": pg_loss.item(), "losses/value_loss": v_loss.item(),
              "losses/approx_kl": d, "losses/beta": beta, "losses/epochs": epoch + 1,
              "charts/policy_entropy": entropy, "ipg/signal_std": signal_std.item(),
-             "ipg/on_policy_term": on_term.item(),
+             "ipg/on_policy_term": on_term.item(), "ipg/nu": args.nu,
              "ipg/off_policy_term": off_term.item()}  # fmt: skip
     if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
         beta /= 2
@@ -443,5 +443,5 @@ if __name__ == "__main__":
                                        args.update_epochs * args.num_minibatches)  # fmt: skip
             beta, stats = ipg_update(agent, optimizer, b, beta, args, qf if learning else None,
                                      replay)  # fmt: skip
-            stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"], "ipg/nu": args.nu}
+            stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}
             run.end_iteration(stats, beta=beta)  # TRY NOT TO MODIFY: log, evaluate, save

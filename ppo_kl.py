@@ -241,5 +241,5 @@ if __name__ == "__main__":
 
             # ALGO LOGIC: the PPO-KL update (eq. 5)
             beta, stats = ppo_kl_update(agent, optimizer, b, beta, args)
-            stats["charts/learning_rate"] = optimizer.param_groups[0]["lr"]
+            stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}
             run.end_iteration(stats, beta=beta)  # TRY NOT TO MODIFY: log, evaluate, save

@@ -389,8 +389,9 @@ if __name__ == "__main__":
                     rb, norm, reward_scale, args.critic_batch_size, args.critic_steps
                 )
                 for data in batches:
-                    critic_loss, q_values = critic_step(qf, qf_target, q_optimizer, agent, data,
-                                                        args.gamma, args.tau)  # fmt: skip
+                    critic_loss, q_values = critic_step(
+                        qf, qf_target, q_optimizer, agent, data, args.gamma, args.tau
+                    )
                 run.log({"losses/critic_loss": critic_loss, "losses/q_values": q_values})
 
             # ALGO LOGIC: advantages (eq. 3-4), the control variate (eq. 9) and eta
@@ -408,5 +409,5 @@ if __name__ == "__main__":
 
             # ALGO LOGIC: the Q-Prop update (eq. 8 inside eq. 5)
             beta, stats = qprop_update(agent, optimizer, b, beta, args, qf if learning else None)
-            stats["charts/learning_rate"] = optimizer.param_groups[0]["lr"]
+            stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}
             run.end_iteration(stats, beta=beta)  # TRY NOT TO MODIFY: log, evaluate, save
