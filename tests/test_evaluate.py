@@ -50,6 +50,12 @@ def test_bad_input_gets_one_clear_line(hopper_run, tmp_path, capsys):
     assert "not a checkpoint" in refused(capsys, str(tmp_path / "notes.pt"))
     torch.save({"script": "ppo_kl", "format_version": 99}, tmp_path / "future.pt")
     assert "format 99" in refused(capsys, str(tmp_path / "future.pt"))
+    # a model.pt of the code before the teaching edition (format 1: numpy arrays pickled)
+    normalizer = {"mean": np.zeros(11), "var": np.ones(11), "count": 1.0, "clip": 10.0}
+    old = {"format_version": 1, "script": "ppo_kl", "args": {"env_id": "Hopper-v5"},
+           "last_eval_seeds": [1], "normalizer": normalizer, "agent": {}}  # fmt: skip
+    torch.save(old, tmp_path / "old.pt")
+    assert "files before format 2 are refused" in refused(capsys, str(tmp_path / "old.pt"))
     assert "NoSuchEnv-v0" in refused(capsys, str(hopper_run), "--env-id", "NoSuchEnv-v0")
     assert "does not match" in refused(capsys, str(hopper_run), "--env-id", "FetchReach-v4")
     assert "--episodes" in refused(capsys, str(hopper_run), "--episodes", "0")
