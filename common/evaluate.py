@@ -116,6 +116,7 @@ class Policy:
         (``is_success`` at the end). ``video_dir``: record the first ``video_episodes``."""
         env = gym.make(self.env_id, render_mode="rgb_array" if video_dir else None)
         if video_dir:
+            follow_camera(env)
             env = gym.wrappers.RecordVideo(env, video_dir, lambda e: e < video_episodes,
                                            disable_logger=True)  # fmt: skip
         env = gym.wrappers.RecordEpisodeStatistics(env)
@@ -131,6 +132,18 @@ class Policy:
                 successes.append(info["is_success"])
         env.close()
         return np.array(returns, np.float64), np.array(successes, np.float64)
+
+
+def follow_camera(env) -> None:
+    """A MuJoCo task whose model has a tracking camera (``track``: Hopper, Walker2d, ...) is
+    recorded through it; the default camera stays put and the runner leaves its view."""
+    unwrapped = env.unwrapped
+    if hasattr(unwrapped, "mujoco_renderer") and hasattr(unwrapped, "model"):
+        import mujoco
+
+        camera = mujoco.mj_name2id(unwrapped.model, mujoco.mjtObj.mjOBJ_CAMERA, "track")
+        if camera >= 0:
+            unwrapped.mujoco_renderer.camera_id = camera
 
 
 def evaluate_snapshot(snapshot: dict, env_id: str, seeds: list[int], video_dir=None):
