@@ -145,7 +145,9 @@ def collect(runs_dir: Path, window: int, include_unfinished: bool = False) -> di
 
 
 def iqm(x: np.ndarray) -> float:
-    """Interquartile mean: the mean of the middle 50% (robust to one bad seed)."""
+    """Interquartile mean: the mean of the middle 50% (robust to one bad seed). rliable's IQM is
+    scipy's 25% ``trim_mean``, the same numbers (checked for 3 to 11 seeds); we do not import it
+    for four lines, since it would bring arch, scipy, pandas and seaborn into every install."""
     x = np.sort(np.asarray(x, float))
     lo, hi = int(np.floor(0.25 * len(x))), int(np.ceil(0.75 * len(x)))
     return float(x[lo:hi].mean()) if hi > lo else float(x.mean())
