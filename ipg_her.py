@@ -49,37 +49,37 @@ class Args(RunArgs):
     num_envs: int = 2
     """the number of parallel environments"""
     num_steps: int = 50
-    """steps per environment per rollout (batch = num_envs * num_steps; 50: one Fetch episode)"""
+    """steps per env per rollout (batch = num_envs * num_steps; ipg_her.py: 50, one episode)"""
     learning_rate: float = 1e-3
-    """the learning rate of Adam (1e-3: OpenAI's HER recipe)"""
+    """the learning rate of Adam (ipg_her.py: 1e-3, OpenAI's HER recipe)"""
     anneal_lr: bool = False
-    """anneal the learning rate linearly to zero (off: the off-policy end keeps learning)"""
+    """anneal the learning rate linearly to zero (not in ipg_her.py: its nu = 1 keeps learning)"""
     gamma: float = 0.98
-    """the discount factor gamma (0.98: OpenAI's HER recipe)"""
+    """the discount factor gamma (ipg_her.py: 0.98, OpenAI's HER recipe)"""
     gae_lambda: float = 0.95
     """lam of GAE (eq. 4)"""
     num_minibatches: int = 1
-    """the number of minibatches per epoch (1: the batch is one episode per env)"""
+    """the number of minibatches per epoch (ipg_her.py: 1, its batch is one episode per env)"""
     update_epochs: int = 10
     """passes over the batch per update"""
     norm_adv: bool = True
     """normalise the advantages of a batch to zero mean and unit std"""
     kl_target: float = 0.1
-    """d_targ, the mean KL per update the beta rule aims for (0.1: nu = 1 takes larger steps)"""
+    """d_targ, the mean KL per update the beta rule aims for (ipg_her.py: 0.1, for nu = 1)"""
     beta_init: float = 1.0
     """initial KL penalty coefficient beta (the PPO paper: insensitive)"""
     kl_early_stop: float | None = None
     """stop an update's epochs once the mean KL exceeds this many times kl_target (None: never)"""
     init_log_std: float = 0.0
-    """initial log std of the Gaussian policy (0: a goal task needs wide exploration at first)"""
+    """initial log std of the Gaussian policy (ipg_her.py: 0, goals need wide exploration)"""
     vf_coef: float = 0.5
     """coefficient of the value loss"""
     max_grad_norm: float = 0.5
     """the maximum gradient norm, of the policy and of V each (clipped separately)"""
     norm_obs: bool = True
-    """normalise observations and goals by running mean and std (saved with the model)"""
+    """normalise observations (and goals) by running mean and std (saved with the model)"""
     norm_reward: bool = False
-    """divide rewards by the running std of the discounted return (off: Fetch's are 0 / -1)"""
+    """divide rewards by the running std of the discounted return (not Fetch's 0 / -1)"""
 
     # IPG arguments
     nu: float = 1.0
@@ -93,7 +93,7 @@ class Args(RunArgs):
     off_policy_batch_size: int = 256
     """replay states per policy minibatch for the off-policy term"""
     normalization: Literal["paper", "unbiased"] = "unbiased"
-    """normalise the learning signal only (paper, biased) or the off-policy term too (unbiased)"""
+    """normalise the learning signal only (paper, biased) or the critic's term with it (unbiased)"""
     buffer_size: int = 1_000_000
     """replay buffer capacity in transitions"""
     critic_learning_rate: float = 1e-3
@@ -101,13 +101,13 @@ class Args(RunArgs):
     critic_batch_size: int = 256
     """transitions per critic step"""
     critic_steps: int = 50
-    """critic steps per iteration (50 per 100 env steps: OpenAI's HER recipe)"""
+    """critic steps per iteration (ipg_her.py: 50 per 100 env steps, OpenAI's HER recipe)"""
     hidden: int = 64
     """width of the two hidden layers of every network (policy, V and Q_w)"""
     tau: float = 0.05
-    """soft target update rate of eq. 6 (after every critic step; 0.05: OpenAI's HER recipe)"""
+    """soft target update rate of eq. 6, after every critic step (ipg_her.py: 0.05, OpenAI's HER)"""
     learning_starts: int = 100
-    """environment steps before the critic and the off-policy term start"""
+    """environment steps before the critic, and what uses it, starts"""
     clip_q_target: bool = True
     """goal tasks with Fetch's 0/-1 reward: clip critic targets to [-1/(1-gamma), 0]"""
 
@@ -139,8 +139,9 @@ def check_args(args: Args, argv: list[str]) -> None:
 
 # ENV SETUP
 def make_env(env_id: str):
-    def thunk():  # a goal task keeps its Dict: HER needs the goals apart
-        return gym.wrappers.RecordEpisodeStatistics(gym.make(env_id))
+    def thunk():
+        env = gym.make(env_id)  # a goal task keeps its Dict: HER needs the goals apart
+        return gym.wrappers.RecordEpisodeStatistics(env)
 
     return thunk
 
@@ -223,7 +224,7 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
                 "returns": (advantages + values).flatten()}  # fmt: skip
 
 
-def sample_replay(rb: ReplayBuffer, norm: InputNormalizer, reward_scale: float, batch_size: int,
+def sample_replay(rb: ReplayBuffer, norm, reward_scale: float, batch_size: int,
                   count: int = 1, rng=None) -> list[dict]:  # fmt: skip
     """``count`` replay batches of tensors, inputs normalised, rewards scaled: one draw of
     ``count * batch_size`` transitions, split (``rng``: a generator other than the buffer's)."""
@@ -405,11 +406,11 @@ if __name__ == "__main__":
                 ro["rewards"] = reward_scaler(ro["rewards"], ro["episode_ends"])
                 reward_scale = 1.0 / reward_scaler.std()
 
-            # ALGO LOGIC: the critic first (eq. 6-7), so that A_bar and the off-policy term see
-            # the new data; targets clipped to the returns the reward allows (scaled)
+            # ALGO LOGIC: the critic first (eq. 6-7, Q-Prop's Algorithm 1), so that the control
+            # variate and the critic's term in the update see the new data
             learning = global_step >= args.learning_starts and rb.num_sampleable() > 0
             if learning and args.critic_steps > 0:
-                clip = args.clip_q_target and q_range is not None
+                clip = args.clip_q_target and q_range is not None  # to the returns allowed
                 target_range = (q_range[0] * reward_scale, 0.0) if clip else None
                 batches = sample_replay(
                     rb, norm, reward_scale, args.critic_batch_size, args.critic_steps

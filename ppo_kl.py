@@ -43,37 +43,37 @@ class Args(RunArgs):
     num_envs: int = 4
     """the number of parallel environments"""
     num_steps: int = 512
-    """steps per environment per rollout (batch = num_envs * num_steps)"""
+    """steps per env per rollout (batch = num_envs * num_steps; ipg_her.py: 50, one episode)"""
     learning_rate: float = 3e-4
-    """the learning rate of Adam"""
+    """the learning rate of Adam (ipg_her.py: 1e-3, OpenAI's HER recipe)"""
     anneal_lr: bool = True
-    """anneal the learning rate linearly to zero"""
+    """anneal the learning rate linearly to zero (not in ipg_her.py: its nu = 1 keeps learning)"""
     gamma: float = 0.99
-    """the discount factor gamma"""
+    """the discount factor gamma (ipg_her.py: 0.98, OpenAI's HER recipe)"""
     gae_lambda: float = 0.95
     """lam of GAE (eq. 4)"""
     num_minibatches: int = 32
-    """the number of minibatches per epoch"""
+    """the number of minibatches per epoch (ipg_her.py: 1, its batch is one episode per env)"""
     update_epochs: int = 10
     """passes over the batch per update"""
     norm_adv: bool = True
     """normalise the advantages of a batch to zero mean and unit std"""
     kl_target: float = 0.02
-    """d_targ, the mean KL divergence per update that the beta rule aims for"""
+    """d_targ, the mean KL per update the beta rule aims for (ipg_her.py: 0.1, for nu = 1)"""
     beta_init: float = 1.0
     """initial KL penalty coefficient beta (the PPO paper: insensitive)"""
     kl_early_stop: float | None = None
     """stop an update's epochs once the mean KL exceeds this many times kl_target (None: never)"""
     init_log_std: float = -0.5
-    """initial log std of the Gaussian policy"""
+    """initial log std of the Gaussian policy (ipg_her.py: 0, goals need wide exploration)"""
     vf_coef: float = 0.5
     """coefficient of the value loss"""
     max_grad_norm: float = 0.5
     """the maximum gradient norm, of the policy and of V each (clipped separately)"""
     norm_obs: bool = True
-    """normalise observations by running mean and std (saved with the model)"""
+    """normalise observations (and goals) by running mean and std (saved with the model)"""
     norm_reward: bool = True
-    """divide rewards by the running std of the discounted return"""
+    """divide rewards by the running std of the discounted return (not Fetch's 0 / -1)"""
 
 
 def check_args(args: Args) -> None:

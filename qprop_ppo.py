@@ -47,37 +47,37 @@ class Args(RunArgs):
     num_envs: int = 4
     """the number of parallel environments"""
     num_steps: int = 512
-    """steps per environment per rollout (batch = num_envs * num_steps)"""
+    """steps per env per rollout (batch = num_envs * num_steps; ipg_her.py: 50, one episode)"""
     learning_rate: float = 3e-4
-    """the learning rate of Adam"""
+    """the learning rate of Adam (ipg_her.py: 1e-3, OpenAI's HER recipe)"""
     anneal_lr: bool = True
-    """anneal the learning rate linearly to zero"""
+    """anneal the learning rate linearly to zero (not in ipg_her.py: its nu = 1 keeps learning)"""
     gamma: float = 0.99
-    """the discount factor gamma"""
+    """the discount factor gamma (ipg_her.py: 0.98, OpenAI's HER recipe)"""
     gae_lambda: float = 0.95
     """lam of GAE (eq. 4)"""
     num_minibatches: int = 32
-    """the number of minibatches per epoch"""
+    """the number of minibatches per epoch (ipg_her.py: 1, its batch is one episode per env)"""
     update_epochs: int = 10
     """passes over the batch per update"""
     norm_adv: bool = True
     """normalise the advantages of a batch to zero mean and unit std"""
     kl_target: float = 0.02
-    """d_targ, the mean KL divergence per update that the beta rule aims for"""
+    """d_targ, the mean KL per update the beta rule aims for (ipg_her.py: 0.1, for nu = 1)"""
     beta_init: float = 1.0
     """initial KL penalty coefficient beta (the PPO paper: insensitive)"""
     kl_early_stop: float | None = None
     """stop an update's epochs once the mean KL exceeds this many times kl_target (None: never)"""
     init_log_std: float = -0.5
-    """initial log std of the Gaussian policy"""
+    """initial log std of the Gaussian policy (ipg_her.py: 0, goals need wide exploration)"""
     vf_coef: float = 0.5
     """coefficient of the value loss"""
     max_grad_norm: float = 0.5
     """the maximum gradient norm, of the policy and of V each (clipped separately)"""
     norm_obs: bool = True
-    """normalise observations by running mean and std (saved with the model)"""
+    """normalise observations (and goals) by running mean and std (saved with the model)"""
     norm_reward: bool = True
-    """divide rewards by the running std of the discounted return"""
+    """divide rewards by the running std of the discounted return (not Fetch's 0 / -1)"""
 
     # Q-Prop arguments
     eta_mode: Literal[
@@ -86,7 +86,7 @@ class Args(RunArgs):
     """control-variate weight eta: from the batch covariance's sign (unbiased), per sample (the
     paper's, biased), 1, or none (= PPO-KL)"""
     normalization: Literal["paper", "unbiased"] = "unbiased"
-    """normalise the learning signal only (paper, biased) or the analytic term with it (unbiased)"""
+    """normalise the learning signal only (paper, biased) or the critic's term with it (unbiased)"""
     buffer_size: int = 1_000_000
     """replay buffer capacity in transitions"""
     critic_learning_rate: float = 1e-3
@@ -94,13 +94,13 @@ class Args(RunArgs):
     critic_batch_size: int = 256
     """transitions per critic step"""
     critic_steps: int = 256
-    """critic steps per iteration"""
+    """critic steps per iteration (ipg_her.py: 50 per 100 env steps, OpenAI's HER recipe)"""
     critic_hidden: int = 100
     """width of the critic's two hidden layers"""
     tau: float = 0.005
-    """soft target update rate of eq. 6 (after every critic step)"""
+    """soft target update rate of eq. 6, after every critic step (ipg_her.py: 0.05, OpenAI's HER)"""
     learning_starts: int = 1000
-    """environment steps before the first critic step; the control variate starts with it"""
+    """environment steps before the critic, and what uses it, starts"""
 
 
 def check_args(args: Args) -> None:
@@ -198,14 +198,15 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
                 "returns": (advantages + values).flatten()}  # fmt: skip
 
 
-def sample_replay(rb: ReplayBuffer, norm: RunningMeanStd, reward_scale: float, batch_size: int,
+def sample_replay(rb: ReplayBuffer, norm, reward_scale: float, batch_size: int,
                   count: int = 1, rng=None) -> list[dict]:  # fmt: skip
     """``count`` replay batches of tensors, inputs normalised, rewards scaled: one draw of
     ``count * batch_size`` transitions, split (``rng``: a generator other than the buffer's)."""
     data = rb.sample(batch_size * count, rng)
+    goal = data["desired_goal"] if norm.goal_task else None  # after HER's relabelling
     tensors = {
-        "obs": norm(data["obs"]),
-        "next_obs": norm(data["next_obs"]),
+        "obs": norm.inputs(data["obs"], goal),
+        "next_obs": norm.inputs(data["next_obs"], goal),
         "actions": torch.as_tensor(data["actions"]),
         "rewards": torch.as_tensor(data["rewards"] * reward_scale),
         "terminations": torch.as_tensor(data["terminations"]),
@@ -243,10 +244,8 @@ def control_variate(qf: QNetwork, agent: Agent, obs: torch.Tensor, actions: torc
 
 
 def compute_eta(advantages: torch.Tensor, cv: torch.Tensor, mode: str) -> torch.Tensor:
-    """eta_t for every sample. ``batch-conservative`` (1 if Cov(A_hat, A_bar) > 0 over the batch,
-    else 0) and ``batch-aggressive`` (its sign) fix one eta per batch: eq. 8 stays unbiased. The
-    paper's ``conservative`` (eta_t = 1 where A_hat_t A_bar_t > 0) and ``aggressive`` (its sign)
-    decide per sample: eta_t then depends on the action, and the gradient is biased."""
+    """eta_t for every sample: one per batch from the sign of Cov(A_hat, A_bar) (``batch-*``:
+    eq. 8 stays unbiased), or per sample from A_hat_t A_bar_t (the paper's: biased)."""
     if mode.startswith("batch-"):
         cov = batch_covariance(advantages, cv)
         eta = 1.0 if cov > 0 else (-1.0 if mode == "batch-aggressive" else 0.0)
@@ -263,13 +262,9 @@ def batch_covariance(x: torch.Tensor, y: torch.Tensor) -> float:
 
 
 def qprop_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, analytic_scale: float = 1.0):
-    """Eq. 8 on a minibatch ``mb`` as a loss, with ``pi = agent.dist(mb["obs"])``:
-
-        -E[r_t (A_hat - eta A_bar)] - analytic_scale E[eta Q_w(s, mu_theta(s))]
-
-    ``mb["adv"]`` is the (possibly normalised) learning signal A_hat - eta A_bar. At theta =
-    theta_old the first term's gradient is -E[grad log pi * signal], the second's the
-    deterministic policy gradient (eq. 7)."""
+    """Eq. 8 on a minibatch ``mb`` as a loss (``pi = agent.dist(mb["obs"])``): -E[r_t adv_t] -
+    analytic_scale E[eta Q_w(s, mu(s))], ``mb["adv"]`` the learning signal A_hat - eta A_bar;
+    at theta_old, the likelihood-ratio gradient and the deterministic one (eq. 7)."""
     ratio = (pi.log_prob(mb["actions"]).sum(-1) - mb["logprobs"]).exp()  # r_t(theta)
     loss = -(ratio * mb["adv"]).mean()
     if torch.any(mb["eta"] != 0):  # the analytic term of eq. 8
@@ -380,8 +375,8 @@ if __name__ == "__main__":
                 ro["rewards"] = reward_scaler(ro["rewards"], ro["episode_ends"])
                 reward_scale = 1.0 / reward_scaler.std()
 
-            # ALGO LOGIC: the critic first (eq. 6-7; Q-Prop's Algorithm 1), so that A_bar, eta
-            # and the analytic term use the trained critic
+            # ALGO LOGIC: the critic first (eq. 6-7, Q-Prop's Algorithm 1), so that the control
+            # variate and the critic's term in the update see the new data
             learning = global_step >= args.learning_starts and rb.num_sampleable() > 0
             learning = learning and args.eta_mode != "none"
             if learning and args.critic_steps > 0:

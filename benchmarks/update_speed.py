@@ -2,8 +2,9 @@
 
 One update is ``update_epochs`` x ``num_minibatches`` Adam steps (320 with the defaults) on a
 Hopper-sized batch (11 observations, 3 actions, 2,048 samples) of random data: the cost does not
-depend on the values. This is the measurement behind the README's "Speed" paragraph of PPO-KL:
-whether a compiled training step would buy the throughput that the eager one lacks.
+depend on the values. This is the measurement behind PPO-KL's speed paragraph in
+docs/benchmarks.md: whether a compiled training step would buy the throughput that the eager one
+lacks.
 
     python benchmarks/update_speed.py --modes eager compile
 """

@@ -43,6 +43,11 @@ class RunningMeanStd:
         """The policy's input: ``normalize(x)`` as a tensor."""
         return torch.as_tensor(self.normalize(x))
 
+    goal_task = False  # as InputNormalizer's, for code that serves both
+
+    def inputs(self, obs: np.ndarray, goal=None) -> torch.Tensor:
+        return self(obs)
+
     def state_dict(self) -> dict:
         return {
             "mean": self.mean.copy(),

@@ -45,7 +45,7 @@ def test_nu_zero_without_cv_is_the_ppo_kl_update():
         kl_target=0.01,
     )
     qf = ipg_her.QNetwork(5, 2, 32)
-    replay_states = replay_of(torch.randn(16, 5))  # never called with nu = 0
+    replay = replay_of(torch.randn(16, 5))  # never called with nu = 0
     betas = []
     for agent, update in [
         (agent_ppo, lambda opt: ppo_kl.ppo_kl_update(agent_ppo, opt, b, 1.0, ppo_kl.Args(**flags))),
@@ -58,7 +58,7 @@ def test_nu_zero_without_cv_is_the_ppo_kl_update():
                 1.0,
                 ipg_her.Args(nu=0.0, use_cv=False, **flags),
                 qf,
-                replay_states,
+                replay,
             ),
         ),
     ]:
