@@ -5,9 +5,9 @@ seed 2's first; evaluation seeded with ``seed + 10_000 + k`` would share 19 of 2
 the neighbouring seed's run. Instead, ``numpy.random.SeedSequence(seed)`` spawns one independent
 child per stream: the training envs' first resets, the evaluation episodes (fresh ones at every
 evaluation), torch, the replay sampler, the action space, the diagnostics (which must not move
-the training's streams) and python/numpy's global generators. Two runs with different seeds then share no stream, and no evaluation episode starts from a
-training reset seed (all are 32-bit draws from independent streams; a collision has probability
-about 2^-32 per pair).
+the training's streams) and python/numpy's global generators. Two runs with different seeds
+then share no stream, and no evaluation episode starts from a training reset seed (all are
+32-bit draws from independent streams; a collision has probability about 2^-32 per pair).
 """
 
 from dataclasses import dataclass
