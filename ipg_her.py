@@ -287,21 +287,26 @@ def ipg_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, adv=None, s_off=N
     return on_term, off_term
 
 
-# ALGO LOGIC: the IPG update (eq. 10) on the PPO-KL surrogate (eq. 5)
-def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args,
-               qf: QNetwork | None = None, replay=None):  # fmt: skip
-    """``update_epochs`` passes of minibatch Adam on eq. 10 inside eq. 5 over ``make_batch``'s batch
-    ``b`` (with ``cv`` = A_bar under ``--use-cv``), then the beta rule; s ~ beta: the minibatch's
-    own states or ``replay()``'s. With nu = 0 and no control variate this is ``ppo_kl_update``."""
-    batch_size = b["obs"].shape[0]
-    minibatch_size = batch_size // args.num_minibatches
+def learning_signal(b: dict, args: Args):
+    """The update's weights: the learning signal, normalised, its raw std sigma, and the critic's
+    term's weights: b (nu; 1 with the control variate) and its scale (``normalization``)."""
     adv = b["advantages"] - b["cv"] if "cv" in b else b["advantages"]  # A_hat (- A_bar)
     off_scale, signal_std = 1.0, adv.std()  # on the raw scale
     if args.norm_adv:
         adv = (adv - adv.mean()) / (signal_std + 1e-8)
         if args.normalization == "unbiased":
             off_scale = 1.0 / (signal_std.item() + 1e-8)  # the same 1/sigma on both terms
-    off_weight = 1.0 if args.use_cv else args.nu  # b = 1 with the control variate
+    return adv, signal_std, 1.0 if args.use_cv else args.nu, off_scale
+
+
+# ALGO LOGIC: the IPG update (eq. 10) on the PPO-KL surrogate (eq. 5)
+def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args,
+               qf: QNetwork | None = None, replay=None):  # fmt: skip
+    """``update_epochs`` passes of Adam on eq. 10 inside eq. 5, then the beta rule; s ~ beta: the
+    minibatch's states or ``replay()``'s. nu = 0 without control variate: ``ppo_kl_update``."""
+    batch_size = b["obs"].shape[0]
+    minibatch_size = batch_size // args.num_minibatches
+    adv, signal_std, off_weight, off_scale = learning_signal(b, args)
     use_off_policy = qf is not None and off_weight > 0
     from_replay = use_off_policy and args.off_policy_states == "replay"
     replayed = iter(replay() if from_replay else ())  # drawn only if the update uses them
@@ -316,9 +321,7 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
             mb = {key: v[start : start + minibatch_size] for key, v in shuffled.items()}
             pi = agent.dist(mb["obs"])
             kl = kl_divergence(Normal(mb["mean"], mb["std"]), pi).sum(-1).mean()  # analytic
-            s_off = None
-            if use_off_policy:
-                s_off = next(replayed)["obs"] if from_replay else mb["obs"]
+            s_off = next(replayed)["obs"] if from_replay else mb["obs"] if use_off_policy else None
             on_term, off_term = ipg_loss(agent, qf, pi, mb, mb["adv"] if args.nu < 1 else None,
                                          s_off, args.q_bar)  # fmt: skip
             pg_loss = beta * kl + (1.0 - args.nu) * on_term + off_weight * off_scale * off_term
@@ -427,16 +430,15 @@ if __name__ == "__main__":
                 b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
                 run.log({"ipg/cv_mean": b["cv"].mean().item()})
             diagnose = args.diagnostics_every and (iteration - 1) % args.diagnostics_every == 0
-            if learning and diagnose:
-                # DIAGNOSTICS: what the mixture does, before the update (ipg/*; own streams)
+            if learning and diagnose:  # DIAGNOSTICS: the mixture, before the update (ipg/*)
                 off_states = b["obs"]
                 if args.off_policy_states == "replay":
                     off_states = sample_replay(rb, norm, 1.0, args.off_policy_batch_size, 1,
                                                run.diagnostics_rng)[0]["obs"]  # fmt: skip
                 cv = b["cv"] if args.use_cv else control_variate(qf, agent, b["obs"], b["actions"])
                 measured = diagnostics.interpolation_report(
-                    agent, qf, b, cv, args, off_states, ipg_loss, run.diagnostics_generator
-                )
+                    agent, qf, b, cv, args, off_states, ipg_loss, learning_signal,
+                    run.diagnostics_generator)  # fmt: skip
                 run.log({f"ipg/{key}": value for key, value in measured.items()})
 
             # ALGO LOGIC: the IPG update (eq. 10 on eq. 5)

@@ -273,6 +273,19 @@ def qprop_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, analytic_scale:
     return loss
 
 
+def learning_signal(b: dict, args: Args):
+    """The update's weights: the learning signal, normalised, its raw std sigma, and the critic's
+    term's weights: eta (the signal is A_hat - eta A_bar) and its scale (``normalization``)."""
+    eta = b["eta"] if "eta" in b else torch.zeros_like(b["advantages"])
+    adv = b["advantages"] - eta * b["cv"] if "cv" in b else b["advantages"]  # A_hat - eta A_bar
+    analytic_scale, signal_std = 1.0, adv.std()  # on the raw scale
+    if args.norm_adv:
+        adv = (adv - adv.mean()) / (signal_std + 1e-8)
+        if args.normalization == "unbiased":
+            analytic_scale = 1.0 / (signal_std.item() + 1e-8)  # the same 1/sigma on both terms
+    return adv, signal_std, eta, analytic_scale
+
+
 # ALGO LOGIC: the Q-Prop update: PPO-KL (eq. 5) with the control variate (eq. 8)
 def qprop_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args,
                  qf: QNetwork | None = None):  # fmt: skip
@@ -281,14 +294,7 @@ def qprop_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float,
     critic, or with eta = 0, this is ``ppo_kl_update``. Returns the new beta and the statistics."""
     batch_size = b["obs"].shape[0]
     minibatch_size = batch_size // args.num_minibatches
-    use_cv = qf is not None and args.eta_mode != "none"
-    eta = b["eta"] if use_cv else torch.zeros_like(b["advantages"])
-    adv = b["advantages"] - eta * b["cv"] if use_cv else b["advantages"]  # A_hat - eta A_bar
-    analytic_scale, signal_std = 1.0, adv.std()  # on the raw scale
-    if args.norm_adv:
-        adv = (adv - adv.mean()) / (signal_std + 1e-8)
-        if args.normalization == "unbiased":
-            analytic_scale = 1.0 / (signal_std.item() + 1e-8)  # the same 1/sigma on both terms
+    adv, signal_std, eta, analytic_scale = learning_signal(b, args)
     pi_old = Normal(b["mean"], b["std"])
     actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
     for epoch in range(args.update_epochs):

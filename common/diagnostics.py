@@ -54,23 +54,18 @@ def explained_variance(values: torch.Tensor, returns: torch.Tensor) -> float:
 
 
 def interpolation_report(agent, qf, b: dict, cv, args, off_states, ipg_loss: Callable,
-                         generator=None, chunks: int = 4) -> dict:  # fmt: skip
+                         learning_signal: Callable, generator=None, chunks=4) -> dict:  # fmt: skip
     """IPG's update measured on its batch ``b`` before it runs (theta = theta_old), through the
-    script's own ``ipg_loss`` and its weights: the norms of the two weighted terms of the policy
-    gradient, (1 - nu) g_on and b g_off (b = nu, 1 with the control variate), normalised as the
-    update normalises them, and ``effective_nu`` = |off| / (|on| + |off|), the share the
-    off-policy term really has; then ``variance_report`` with eq. 8 at eta = 0 and 1 (raw
-    advantage scale, Q_bar from the mean). ``cv``: A_bar of the batch."""
-    params, adv = agent.actor_parameters(), b["advantages"]
-    signal = adv - cv if args.use_cv else adv
-    sigma = signal.std() + 1e-8 if args.norm_adv else torch.ones(())
-    if args.norm_adv:
-        signal = (signal - signal.mean()) / sigma
-    off_scale = 1.0 / sigma if args.normalization == "unbiased" else 1.0  # as the update
+    script's own ``ipg_loss`` and ``learning_signal`` (its normalisation and weights): the norms
+    of the two weighted terms of the policy gradient, (1 - nu) g_on and b g_off, and
+    ``effective_nu`` = |off| / (|on| + |off|), the share the off-policy term really has; then
+    ``variance_report`` with eq. 8 at eta = 0 and 1 (raw advantage scale, Q_bar from the mean).
+    ``cv``: A_bar of the batch."""
+    params = agent.actor_parameters()
+    signal, _, off_weight, off_scale = learning_signal(b, args)  # the update's own
     on_term, off_term = ipg_loss(agent, qf, agent.dist(b["obs"]), b, signal, off_states,
                                  args.q_bar, generator)  # fmt: skip
     on = (1.0 - args.nu) * flat_grad(on_term, params).norm().item()
-    off_weight = 1.0 if args.use_cv else args.nu
     off = off_weight * flat_grad(off_term * off_scale, params).norm().item()
 
     def estimate(mb: dict, with_cv: bool):  # eq. 8 at eta = 1 or 0, on the raw scale

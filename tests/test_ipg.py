@@ -306,7 +306,9 @@ def test_gradient_diagnostics_measure_the_two_terms_and_the_control_variates_var
         noise -= noise.mean()
         noise -= (noise @ centred) / (centred @ centred) * centred  # orthogonal to A_bar
         b["advantages"] = cv + k * centred.norm() / noise.norm() * noise
-        d = diagnostics.interpolation_report(agent, qf, b, cv, args, states, ipg_her.ipg_loss)
+        d = diagnostics.interpolation_report(
+            agent, qf, b, cv, args, states, ipg_her.ipg_loss, ipg_her.learning_signal
+        )
         assert d["corr_adv_cv"] == pytest.approx(1 / np.sqrt(1 + k**2), abs=1e-4)
         adv = b["advantages"]
         sigma = adv.std() + 1e-8
@@ -319,7 +321,9 @@ def test_gradient_diagnostics_measure_the_two_terms_and_the_control_variates_var
         assert d["effective_nu"] == pytest.approx(off / (on + off), rel=1e-4)
         assert np.isfinite(d["explained_variance"])
     b["advantages"] = cv
-    d = diagnostics.interpolation_report(agent, qf, b, cv, args, states, ipg_her.ipg_loss, chunks=8)
+    d = diagnostics.interpolation_report(
+        agent, qf, b, cv, args, states, ipg_her.ipg_loss, ipg_her.learning_signal, chunks=8
+    )
     assert d["grad_var_cv"] < 0.5 * d["grad_var"]
 
 
