@@ -258,9 +258,13 @@ def main(args: Args) -> int:
     todo = [r for r in runs if not finished(suite_dir / r.folder)]
     skipped = len(runs) - len(todo)
     if args.dry_run:
-        for r in todo:
-            print(" ".join(r.command(suite_dir / r.folder)))
-        print(f"{len(todo)} to run, {skipped} already finished")
+        try:
+            for r in todo:
+                print(" ".join(r.command(suite_dir / r.folder)))
+            print(f"{len(todo)} to run, {skipped} already finished")
+            sys.stdout.flush()
+        except BrokenPipeError:  # `--dry-run | head`: the reader has what it wanted
+            sys.stdout = open(os.devnull, "w")
         return 0
     start, failed, done = time.time(), [], 0
     print(f"suite {args.suite}: {len(todo)} to run, {skipped} already finished, "

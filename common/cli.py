@@ -113,10 +113,15 @@ def check_her(args, argv: list[str], goal_task: bool) -> None:
 def check_critic(args) -> None:
     """The checks of an off-policy critic's settings (Q-Prop's and IPG's)."""
     check_positive(args, "critic_batch_size", "buffer_size", "critic_learning_rate")
+    check_positive(args, *(name for name in ("hidden", "critic_hidden") if hasattr(args, name)))
     if not 0.0 < args.tau <= 1.0:
         fail(f"--tau must be in (0, 1], got {args.tau}")
     if args.critic_steps < 0 or args.learning_starts < 0:
         fail("--critic-steps and --learning-starts must be non-negative")
+    rows, longest = args.buffer_size // args.num_envs, gym.spec(args.env_id).max_episode_steps
+    if longest and rows < longest:  # replay samples finished episodes only
+        fail(f"--buffer-size {args.buffer_size} keeps {rows} steps per env, less than one "
+             f"{args.env_id} episode ({longest} steps); enlarge it")  # fmt: skip
 
 
 def check_task(env_id: str) -> bool:

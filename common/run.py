@@ -111,6 +111,10 @@ class Run:
             print(f"resuming run folder: {self.dir} after step {step:,}", flush=True)
         else:
             self.dir, self.writer = start_run(args)
+        batch, steps = args.num_envs * args.num_steps, args.total_timesteps
+        if steps % batch:  # training runs in whole batches
+            print(f"--total-timesteps {steps:,}: {steps // batch * batch:,} steps, whole batches "
+                  f"of {batch:,} (num_envs * num_steps)", flush=True)  # fmt: skip
         signal.signal(signal.SIGTERM, raise_terminated)  # kill ends a run as Ctrl-C does
         # seeding: one independent stream per use (common/seeding.py)
         self.streams = seeding.streams(args.seed, args.num_envs)
@@ -123,7 +127,7 @@ class Run:
         torch.set_num_threads(args.torch_threads)
         self.global_step, self.train_time, self.last_eval, self.last_save = 0, 0.0, 0, 0
         self.eval_seeds, self.eval_returns, self.eval_success = [], np.zeros(0), np.zeros(0)
-        self.recent_success, self.latest, self.scalars = [], "", {}
+        self.recent_success, self.latest, self.latest_eval, self.scalars = [], "", "no eval yet", {}
         self.first_iteration, self.last_resume, self.start_time = 1, 0, time.time()
 
     def start(self, envs, model: dict, training: dict, **scalars):
@@ -174,10 +178,11 @@ class Run:
                 self.recent_success = (self.recent_success + [success])[-100:]
                 self.writer.add_scalar("charts/success_rate", np.mean(self.recent_success), step)
         if episodes:  # the live line's training figure: success on goal tasks, else return
-            latest = (
-                f"train success {np.mean(self.recent_success):.2f}" if self.recent_success else ""
+            self.latest = (  # the stochastic policy's; evaluations take its mean
+                f"train success (stochastic) {np.mean(self.recent_success):.2f}"
+                if self.recent_success
+                else f"train return (stochastic) {episodes[-1][2]:.1f}"
             )
-            self.latest = latest or f"train return {episodes[-1][2]:.1f}"
         self.global_step += num_envs * self.args.num_steps
         return self.global_step
 
@@ -211,10 +216,14 @@ class Run:
         for eval_step, (returns, success) in self.evaluator.finished(wait=last or resume_due):
             self.eval_returns, self.eval_success = returns, success
             self.writer.add_scalar("eval/episodic_return", returns.mean(), eval_step)
-            message = f"step={eval_step} eval_return={returns.mean():.1f}"
+            message = (
+                f"evaluation of step {eval_step:,} (mean policy): eval_return={returns.mean():.1f}"
+            )
+            self.latest_eval = f"eval return {returns.mean():.1f} @ {eval_step:,}"
             if len(success):
                 self.writer.add_scalar("eval/success_rate", success.mean(), eval_step)
                 message += f" eval_success={success.mean():.2f}"
+                self.latest_eval = f"eval success {success.mean():.2f} @ {eval_step:,}"
             self.print(f"{message} SPS={sps}")
         if args.save_model and args.save_freq and step - self.last_save >= args.save_freq:
             self.last_save = step
@@ -228,7 +237,7 @@ class Run:
                 recent_success=self.recent_success, eval_seeds=self.eval_seeds,
             )  # fmt: skip
         self.progress.update(step - self.progress.n)
-        self.progress.set_postfix_str(self.latest, refresh=False)
+        self.progress.set_postfix_str(f"{self.latest} | {self.latest_eval}", refresh=False)
 
     def save(self) -> None:
         path = os.path.join(self.dir, "model.pt")

@@ -90,3 +90,17 @@ def test_update_speed_times_the_full_eager_update():
     timing = update_speed.time_updates("eager", update_speed.Args(repeats=1))
     assert timing["minibatch_steps"] == 320  # 10 epochs x 32 minibatches, ppo_kl.py's defaults
     assert 0 < timing["min_s"] <= timing["median_s"]
+
+
+def test_a_dry_run_piped_into_head_ends_quietly():
+    """``run.py --dry-run | head``: a reader that closes the pipe early gets no traceback."""
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    cmd = [sys.executable, "benchmarks/run.py", "--suite", "paper", "--dry-run"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()  # gone before the first line is written, as head is after its lines
+    stderr = proc.communicate(timeout=60)[1].decode()
+    assert proc.returncode == 0 and "Error" not in stderr, stderr

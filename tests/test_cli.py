@@ -64,6 +64,10 @@ def test_common_checks(capsys, script, argv, needle):
         ("ipg_her", ["--no-her", "--her-n-sampled-goal", "2"], "ignored (--no-her)"),
         ("ipg_her", ["--no-her", "--her-goal-selection-strategy=final"], "ignored (--no-her)"),
         ("ipg_her", ["--off-policy-states", "batch", "--off-policy-batch-size", "64"], "ignored"),
+        ("ipg_her", ["--buffer-size", "10"], "less than one FetchReach-v4 episode (50 steps)"),
+        ("qprop_ppo", ["--buffer-size", "3000"], "less than one Hopper-v5 episode (1000 steps)"),
+        ("ipg_her", ["--hidden", "0"], "--hidden must be positive"),
+        ("qprop_ppo", ["--critic-hidden", "0"], "--critic-hidden must be positive"),
     ],
 )
 def test_algorithm_checks(capsys, script, argv, needle):
@@ -127,3 +131,14 @@ def test_bad_input_end_to_end_fails_with_one_clear_line_and_no_run_folder(tmp_pa
     result = run_script(f"{script}.py", tmp_path, "--total-timesteps", "0", timeout=60)
     assert_clean_error(result, "--total-timesteps")
     assert not (tmp_path.exists() and run_dirs(tmp_path)), "no run folder for rejected input"
+
+
+def test_a_budget_that_is_not_whole_batches_says_what_it_runs(tmp_path):
+    """Training runs in whole batches: the first lines say so, with the steps it will run."""
+    flags = ("--env-id", "Hopper-v5", "--total-timesteps", "700", "--num-envs", "2",
+             "--num-steps", "128", "--num-minibatches", "2", "--update-epochs", "1",
+             "--eval-freq", "0", "--eval-episodes", "1")  # fmt: skip
+    result = run_script("ppo_kl.py", tmp_path, *flags)
+    assert result.returncode == 0, result.stderr
+    assert "--total-timesteps 700: 512 steps, whole batches of 256" in result.stdout
+    assert "evaluation of step 512 (mean policy): eval_return=" in result.stdout
