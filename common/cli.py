@@ -6,6 +6,7 @@ folder exists). A check either returns or exits through ``fail``; it never chang
 """
 
 import contextlib
+import difflib
 import io
 import re
 import sys
@@ -41,7 +42,14 @@ def parse_args(args_class: type[A], argv: list[str] | None = None) -> A:
             return tyro.cli(args_class, args=argv)
     except SystemExit as e:
         if e.code:
-            fail(" ".join(re.sub(r"[│╭╮╰╯─]", " ", captured.getvalue()).split()))
+            text = " ".join(re.sub(r"[│╭╮╰╯─]|-{3,}", " ", captured.getvalue()).split())
+            if "Unrecognized options:" in text:  # tyro's headings and each guess's help: one line
+                rest = text.split("Unrecognized options:", 1)[1]
+                given = re.split(r" (?:Perhaps|Arguments similar|For full)", rest, maxsplit=1)[0]
+                guesses = re.findall(r"(?:meant|similar to --[\w-]+): (--[\w-]+)", rest)
+                guess = f"; did you mean {' or '.join(guesses)}?" if guesses else ""
+                fail(f"unrecognized option {given.strip()}{guess} (--help lists them)")
+            fail(text)
         raise
 
 
@@ -129,7 +137,9 @@ def check_task(env_id: str) -> bool:
     its observations a vector or a goal Dict (``observation``, ``achieved_goal``,
     ``desired_goal``, each a vector). Returns whether it is a goal task."""
     if env_id not in gym.registry:
-        fail(f"unknown --env-id {env_id!r}; use a registered id such as Hopper-v5 or FetchReach-v4")
+        close = difflib.get_close_matches(env_id, gym.registry, n=1)
+        hint = f"did you mean {close[0]}?" if close else "use a registered id such as Hopper-v5"
+        fail(f"unknown --env-id {env_id!r}; {hint}")
     try:
         env = gym.make(env_id)
     except gym.error.DependencyNotInstalled as e:

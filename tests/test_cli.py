@@ -101,6 +101,8 @@ def test_checks_do_not_modify_args():
         (["--seed", "-1"], "--seed must be non-negative"),
         (["--save-freq", "-5"], "--save-freq"),
         (["--batch-size", "64"], "--batch-size"),  # computed, not a flag
+        (["--total-timestep", "3000"], "unrecognized option --total-timestep, 3000; did you mean"),
+        (["--env-id", "Hoper-v5"], "did you mean Hopper-v5?"),
     ],
 )
 @pytest.mark.parametrize("script", SCRIPTS)
