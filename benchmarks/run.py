@@ -26,8 +26,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @dataclass
 class Args:
-    suite: Literal["paper", "ablations", "eta", "mixing", "push", "quick"] = "paper"
-    """which grid to run"""
+    """Run a suite of script x task x seed, one process each; a later call resumes it."""
+
+    suite: Literal["paper", "ablations", "eta", "mixing", "push", "quick"]
+    """which grid: quick (seconds), paper (30 runs: hours), eta, ablations, mixing, push (days)"""
     seeds: tuple[int, ...] = ()
     """override the suite's seeds"""
     only: str = ""
