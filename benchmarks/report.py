@@ -63,15 +63,11 @@ class Args:
     merge_label: str = "earlier code"
     """what the merged groups were measured on (shown in the table's note)"""
     page: str = ""
-    """also write table and figures into this Markdown page (docs/results.md), between
-    <!-- results:{suite}:start/end -->; the figures then go into img/{suite}/ beside the page"""
+    """also write table and figures into this page (docs/results.md), between its suite markers"""
     keep_export: bool = False
-    """also keep the runs of the results folder's own curves.json that the run folders lack (run
-    folders are not committed: on a new machine, the runs of earlier sessions live only in the
-    export), so running more seeds of a suite adds to its results instead of replacing them"""
+    """also keep the runs in the suite's curves.json that the run folders lack (other machines')"""
     include_unfinished: bool = False
-    """also read runs that have not finished (a long run between two of its sessions), marked in
-    the table with the step each reached"""
+    """also read runs not finished yet (a long run between sessions), marked with their step"""
 
 
 def read_run(run_dir: Path) -> dict:

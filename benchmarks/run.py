@@ -45,9 +45,7 @@ class Args:
     dry_run: bool = False
     """print the commands and exit"""
     push_steps: int = 1_500_000
-    """budget of the push suite's runs (part of their names). They write a resume point every
-    50,000 steps: a run interrupted (a session's end) goes on from there when run.py is run
-    again, so a budget longer than one session is run in parts"""
+    """the push suite's budget per run (in its runs' names; resumable every 50,000 steps)"""
 
 
 @dataclass(frozen=True)

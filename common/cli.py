@@ -34,12 +34,12 @@ def fail(message: str) -> NoReturn:
     sys.exit(2)
 
 
-def parse_args(args_class: type[A], argv: list[str] | None = None) -> A:
+def parse_args(args_class: type[A], argv: list[str] | None = None, prog: str | None = None) -> A:
     """``tyro.cli``, with a parse error reduced to one line (tyro draws a box)."""
     captured = io.StringIO()
     try:
         with contextlib.redirect_stderr(captured):
-            return tyro.cli(args_class, args=argv)
+            return tyro.cli(args_class, args=argv, prog=prog)
     except SystemExit as e:
         if e.code:
             text = " ".join(re.sub(r"[│╭╮╰╯─]|-{3,}", " ", captured.getvalue()).split())

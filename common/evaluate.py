@@ -26,6 +26,7 @@ import signal
 import sys
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
+from typing import Annotated
 
 import gymnasium as gym
 import numpy as np
@@ -42,17 +43,16 @@ class Args:
     """Evaluate a saved policy: its mean return (and success rate) over episodes, optionally
     recorded as videos."""
 
-    path: tyro.conf.Positional[str]
+    path: tyro.conf.Positional[Annotated[str, tyro.conf.arg(metavar="PATH")]]
     """a model.pt written with --save-model, or the run folder holding it"""
     episodes: int | None = None
-    """episodes to run (default: as many as the run's last evaluation)"""
+    """episodes to run (None: as many as the run's last evaluation)"""
     seed: int | None = None
-    """seed of fresh evaluation episodes (default: replay the run's last evaluation's episodes)"""
+    """seed of fresh evaluation episodes (None: replay the run's last evaluation's episodes)"""
     stochastic: bool = False
     """sample actions from the Gaussian policy instead of taking its mean"""
     capture_video: bool = False
-    """record the first episode into the run folder's videos/evaluate (needs moviepy and
-    MuJoCo's renderer, e.g. MUJOCO_GL=egl, or osmesa with libosmesa6)"""
+    """record the first episode into the run's videos/evaluate (moviepy; MuJoCo's renderer)"""
     env_id: str | None = None
     """evaluate on another task with the same observation and action spaces"""
 
@@ -206,7 +206,7 @@ class BackgroundEvaluator:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = cli.parse_args(Args, argv)
+    args = cli.parse_args(Args, argv, prog="python -m common.evaluate")
     if args.episodes is not None and args.episodes <= 0:
         cli.fail(f"--episodes must be positive, got {args.episodes}")
     if args.seed is not None and args.seed < 0:

@@ -65,8 +65,7 @@ class RunArgs:
     resume_freq: int = 0
     """write resume.pt every this many env steps and at the end (0: never), for --resume"""
     resume: str | None = None
-    """go on with the run in this run folder from its resume.pt (same flags; a larger
-    --total-timesteps extends it); the environments restart with fresh episodes"""
+    """go on with the run in this folder from its resume.pt (same flags; a larger budget extends)"""
 
 
 class Terminated(KeyboardInterrupt):
