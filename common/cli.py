@@ -8,6 +8,7 @@ folder exists). A check either returns or exits through ``fail``; it never chang
 import contextlib
 import difflib
 import io
+import os
 import re
 import sys
 from typing import NoReturn, TypeVar
@@ -22,7 +23,16 @@ A = TypeVar("A")
 
 def register_goal_tasks() -> None:
     """Register the gymnasium-robotics tasks (FetchReach-v4, ...) without the notice its import
-    prints about Adroit tasks we never use."""
+    prints about Adroit tasks we never use. MuJoCo loads the renderer ``MUJOCO_GL`` names on
+    import, so a missing one is refused here, though training renders nothing."""
+    try:
+        import mujoco  # noqa: F401
+    except Exception as e:
+        if "MUJOCO_GL" not in os.environ:
+            raise
+        fail(f"MUJOCO_GL={os.environ['MUJOCO_GL']}: MuJoCo cannot load that renderer "
+             f"({type(e).__name__}); install it (osmesa: apt install libosmesa6) or unset "
+             "MUJOCO_GL, which only --capture-video needs")  # fmt: skip
     with contextlib.redirect_stderr(io.StringIO()):
         import gymnasium_robotics
     gym.register_envs(gymnasium_robotics)
@@ -69,8 +79,9 @@ def check_common(args) -> bool:
     positive sizes and learning rates, a budget of at least one batch that splits into
     minibatches, gamma and lambda in range, and ``--capture-video``'s prerequisites. Returns
     whether the task is a goal task."""
-    goal_task = check_task(args.env_id)
-    check_positive(args, "total_timesteps", "num_envs", "num_steps", "num_minibatches")
+    check_positive(args, "num_envs")
+    goal_task = check_task(args.env_id, args.num_envs)
+    check_positive(args, "total_timesteps", "num_steps", "num_minibatches")
     check_positive(args, "update_epochs", "eval_episodes", "learning_rate")
     if args.seed < 0:
         fail(f"--seed must be non-negative, got {args.seed}")
@@ -132,10 +143,11 @@ def check_critic(args) -> None:
              f"{args.env_id} episode ({longest} steps); enlarge it")  # fmt: skip
 
 
-def check_task(env_id: str) -> bool:
-    """The task is registered, its dependencies are installed, its actions are continuous and
-    its observations a vector or a goal Dict (``observation``, ``achieved_goal``,
-    ``desired_goal``, each a vector). Returns whether it is a goal task."""
+def check_task(env_id: str, num_envs: int = 1) -> bool:
+    """The task is registered, its dependencies are installed, ``num_envs`` copies of its
+    simulator fit in the free memory, its actions are continuous and its observations a vector
+    or a goal Dict (``observation``, ``achieved_goal``, ``desired_goal``, each a vector).
+    Returns whether it is a goal task."""
     if env_id not in gym.registry:
         close = difflib.get_close_matches(env_id, gym.registry, n=1)
         hint = f"did you mean {close[0]}?" if close else "use a registered id such as Hopper-v5"
@@ -148,6 +160,12 @@ def check_task(env_id: str) -> bool:
                  "use a v4 or v5 MuJoCo task such as Hopper-v5")  # fmt: skip
         fail(f"{env_id} needs a dependency that is not installed: {' '.join(map(str, e.args))}")
     action_space, observation_space = env.action_space, env.observation_space
+    if (model := getattr(env.unwrapped, "model", None)) is not None:  # a MuJoCo task
+        need = num_envs * (model.nbuffer + env.unwrapped.data.nbuffer + env.unwrapped.data.narena)
+        free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        if need > free:
+            fail(f"--num-envs {num_envs}: {num_envs} copies of {env_id}'s simulator need about "
+                 f"{need / 2**30:.1f} GiB, and {free / 2**30:.1f} GiB are free")  # fmt: skip
     env.close()
     if not isinstance(action_space, gym.spaces.Box):
         fail(f"{env_id} has {type(action_space).__name__} actions; these scripts need continuous "

@@ -1,8 +1,12 @@
 """common/cli.py and each script's own argument checks, in-process: bad input exits with one
 ``error:`` line naming the problem, before any run folder exists."""
 
+import os
+import subprocess
+import sys
+
 import pytest
-from conftest import assert_clean_error, run_dirs, run_script
+from conftest import ROOT, assert_clean_error, run_dirs, run_script
 
 import ipg_her
 import ppo_kl
@@ -103,6 +107,7 @@ def test_checks_do_not_modify_args():
         (["--batch-size", "64"], "--batch-size"),  # computed, not a flag
         (["--total-timestep", "3000"], "unrecognized option --total-timestep, 3000; did you mean"),
         (["--env-id", "Hoper-v5"], "did you mean Hopper-v5?"),
+        (["--num-envs", "100000", "--total-timesteps", "1000000000"], "GiB are free"),
     ],
 )
 @pytest.mark.parametrize("script", SCRIPTS)
@@ -144,3 +149,13 @@ def test_a_budget_that_is_not_whole_batches_says_what_it_runs(tmp_path):
     assert result.returncode == 0, result.stderr
     assert "--total-timesteps 700: 512 steps, whole batches of 256" in result.stdout
     assert "evaluation of step 512 (mean policy): eval_return=" in result.stdout
+
+
+def test_a_renderer_that_cannot_load_is_refused_before_training(tmp_path):
+    """MuJoCo loads MUJOCO_GL's renderer on import (osmesa without libosmesa6 raised a 38-line
+    traceback even for plain training); an unknown one takes the same path."""
+    env = {**os.environ, "MUJOCO_GL": "no-such-renderer"}
+    result = subprocess.run([sys.executable, str(ROOT / "ppo_kl.py"), "--log-dir", str(tmp_path)],
+                            env=env, capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert_clean_error(result, "MUJOCO_GL=no-such-renderer", "unset MUJOCO_GL")
+    assert not tmp_path.exists() or not run_dirs(tmp_path)
