@@ -28,8 +28,8 @@ ROOT = Path(__file__).resolve().parents[1]
 class Args:
     """Run a suite of script x task x seed, one process each; a later call resumes it."""
 
-    suite: Literal["paper", "ablations", "eta", "mixing", "push", "quick"]
-    """which grid: quick (seconds), paper (30 runs: hours), eta, ablations, mixing, push (days)"""
+    suite: Literal["paper", "ablations", "eta", "mixing", "push", "fetch", "quick"]
+    """which grid: quick (seconds), paper (hours), eta, ablations, mixing, push, fetch (days)"""
     seeds: tuple[int, ...] = ()
     """override the suite's seeds"""
     only: str = ""
@@ -80,7 +80,9 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     Hopper at 300k steps; ``mixing``: IPG+HER on FetchReach at nu 0 to 1, with and without the
     control variate, with a small and a large on-policy batch, and IPG and Q-Prop variants on
     Hopper at 300k steps (``--only FetchReach`` or ``--only Hopper`` runs one task); ``push``:
-    IPG+HER on FetchPush-v4; ``quick``: the paper's shape on tiny budgets."""
+    IPG+HER on FetchPush-v4 with its earlier controls; ``fetch``: ``ipg_her.py`` with no flag but
+    the task's, Push 5 seeds x 300k, PickAndPlace 3 x 500k, Slide 3 x 1M; ``quick``: the paper's
+    shape on tiny budgets."""
     fetch = lambda name, script, *flags: (name, script, "FetchReach-v4", flags)  # noqa: E731
     hopper = lambda name, script, *flags: (name, script, "Hopper-v5", flags)  # noqa: E731
     fetch_eval = ("--total-timesteps", str(FETCH_STEPS), "--eval-freq", "2500")
@@ -188,6 +190,15 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         grid = [(name, "ipg_her.py", "FetchPush-v4", budget),
                 (f"{name}_qsample", "ipg_her.py", "FetchPush-v4", sample),
                 (f"{name}_nu0.8", "ipg_her.py", "FetchPush-v4", mixed)]  # fmt: skip
+    elif suite == "fetch":  # evaluated every 10,000 steps on 50 episodes, resumable
+        every = ("--eval-freq", "10000", "--eval-episodes", "50", "--resume-freq", "50000")
+        tasks = {"FetchPush-v4": (300_000, (1, 2, 3, 4, 5)),
+                 "FetchPickAndPlace-v4": (500_000, (1, 2, 3)),
+                 "FetchSlide-v4": (1_000_000, (1, 2, 3))}  # fmt: skip
+        return [Run(f"ipg_her_{steps // 1000}k", "ipg_her.py", env_id, seed,
+                    ("--total-timesteps", str(steps), *every))
+                for env_id, (steps, task_seeds) in tasks.items()
+                for seed in seeds or task_seeds]  # fmt: skip
     else:  # quick
         seeds = seeds or (1,)
         tiny = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4")

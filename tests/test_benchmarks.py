@@ -104,3 +104,24 @@ def test_a_dry_run_piped_into_head_ends_quietly():
     proc.stdout.close()  # gone before the first line is written, as head is after its lines
     stderr = proc.communicate(timeout=60)[1].decode()
     assert proc.returncode == 0 and "Error" not in stderr, stderr
+
+
+def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation_grid():
+    """Issue 29's grid: Push 5 seeds x 300k, PickAndPlace 3 x 500k, Slide 3 x 1M, evaluated every
+    10,000 steps on 50 episodes, resumable; nothing else of the defaults is changed."""
+    runs = run.suite_runs("fetch")
+    budgets = {}
+    for r in runs:
+        assert r.script == "ipg_her.py"
+        flags = dict(zip(r.flags[::2], r.flags[1::2], strict=True))
+        assert set(flags) == {
+            "--total-timesteps",
+            "--eval-freq",
+            "--eval-episodes",
+            "--resume-freq",
+        }
+        assert (flags["--eval-freq"], flags["--eval-episodes"]) == ("10000", "50")
+        budgets.setdefault((r.env_id, flags["--total-timesteps"]), []).append(r.seed)
+    assert budgets == {("FetchPush-v4", "300000"): [1, 2, 3, 4, 5],
+                       ("FetchPickAndPlace-v4", "500000"): [1, 2, 3],
+                       ("FetchSlide-v4", "1000000"): [1, 2, 3]}  # fmt: skip
