@@ -26,9 +26,9 @@ import torch.nn as nn
 import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
-from common import cli, diagnostics
+from common import cli, diagnostics, her
 from common.gae import compute_gae
-from common.her import HerReplayBuffer, ReplayBuffer, goal_task_reward, sparse_return_range
+from common.her import HerReplayBuffer, ReplayBuffer, goal_task_reward, sample_replay
 from common.normalizer import InputNormalizer, RewardScaler
 from common.rollout import collect_rollout, make_vector_env
 from common.run import Run, RunArgs
@@ -108,6 +108,10 @@ class Args(RunArgs):
     """soft target update rate of eq. 6, after every critic step (ipg_her.py: 0.05, OpenAI's HER)"""
     learning_starts: int = 100
     """environment steps before the critic, and what uses it, starts"""
+    target_std: float | None = None
+    """the sigma rule: hold H(pi) at the entropy of N(0, target_std^2) per action (None: off)"""
+    action_l2: float = 0.0
+    """weight of the penalty mean(mu(s)^2) beside the off-policy term (OpenAI's HER: 1)"""
     clip_q_target: bool = True
     """goal tasks with Fetch's 0/-1 reward: clip critic targets to [-1/(1-gamma), 0]"""
 
@@ -224,23 +228,6 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
                 "returns": (advantages + values).flatten()}  # fmt: skip
 
 
-def sample_replay(rb: ReplayBuffer, norm, reward_scale: float, batch_size: int,
-                  count: int = 1, rng=None) -> list[dict]:  # fmt: skip
-    """``count`` replay batches of tensors, inputs normalised, rewards scaled: one draw of
-    ``count * batch_size`` transitions, split (``rng``: a generator other than the buffer's)."""
-    data = rb.sample(batch_size * count, rng)
-    goal = data["desired_goal"] if norm.goal_task else None  # after HER's relabelling
-    tensors = {
-        "obs": norm.inputs(data["obs"], goal),
-        "next_obs": norm.inputs(data["next_obs"], goal),
-        "actions": torch.as_tensor(data["actions"]),
-        "rewards": torch.as_tensor(data["rewards"] * reward_scale),
-        "terminations": torch.as_tensor(data["terminations"]),
-    }
-    chunks = {key: t.split(batch_size) for key, t in tensors.items()}
-    return [{key: chunks[key][i] for key in chunks} for i in range(count)]
-
-
 # ALGO LOGIC: the critic step (eq. 6-7)
 def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent,
                 data: dict, gamma: float, tau: float, target_range=None):  # fmt: skip
@@ -301,7 +288,7 @@ def learning_signal(b: dict, args: Args):
 
 # ALGO LOGIC: the IPG update (eq. 10) on the PPO-KL surrogate (eq. 5)
 def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args,
-               qf: QNetwork | None = None, replay=None):  # fmt: skip
+               qf: QNetwork | None = None, replay=None, alpha: float = 0.0):  # fmt: skip
     """``update_epochs`` passes of Adam on eq. 10 inside eq. 5, then the beta rule; s ~ beta: the
     minibatch's states or ``replay()``'s. nu = 0 without control variate: ``ppo_kl_update``."""
     batch_size = b["obs"].shape[0]
@@ -325,6 +312,9 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
             on_term, off_term = ipg_loss(agent, qf, pi, mb, mb["adv"] if args.nu < 1 else None,
                                          s_off, args.q_bar)  # fmt: skip
             pg_loss = beta * kl + (1.0 - args.nu) * on_term + off_weight * off_scale * off_term
+            if args.action_l2 and s_off is not None:  # OpenAI's HER: keeps mu(s) off the bounds
+                pg_loss = pg_loss + args.action_l2 * agent.actor_mean(s_off).pow(2).mean()
+            pg_loss = pg_loss - alpha * pi.entropy().sum(-1).mean()  # the sigma rule's bonus
             v_loss = 0.5 * ((agent.get_value(mb["obs"]) - mb["returns"]) ** 2).mean()
             optimizer.zero_grad()
             (pg_loss + args.vf_coef * v_loss).backward()
@@ -350,6 +340,13 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
     elif d > args.kl_target * 1.5:
         beta *= 2
     return min(max(beta, BETA_MIN), BETA_MAX), stats
+
+
+def sigma_rule(alpha: float, entropy: float, act_dim: int, target_std: float) -> float:
+    """SAC's temperature rule (Haarnoja et al. 2018, eq. 18), two-sided: one step of 0.01 on alpha
+    towards H(pi) = act_dim * H(N(0, target_std^2)); alpha < 0 shrinks sigma (nothing else does)."""
+    h_target = act_dim * (0.5 * np.log(2 * np.pi * np.e) + np.log(target_std))
+    return alpha + 0.01 * (h_target - entropy)
 
 
 if __name__ == "__main__":
@@ -379,16 +376,16 @@ if __name__ == "__main__":
     q_range = None  # the returns the reward allows, for clipping the critic's targets
     if goal_dim:  # hindsight relabelling (Figure 2) needs the task's reward function
         compute_reward = goal_task_reward(args.env_id, args.her)
-        q_range = sparse_return_range(compute_reward, goal_dim, args.gamma)
+        q_range = her.sparse_return_range(compute_reward, goal_dim, args.gamma)
         rb = HerReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, goal_dim,
                              compute_reward, args.her_n_sampled_goal if args.her else 0,
                              args.her_goal_selection_strategy, run.streams.replay_seed)  # fmt: skip
     reward_scaler = RewardScaler(args.num_envs, args.gamma)
-    raw_obs, beta = run.start(
+    raw_obs, beta, alpha = run.start(
         envs, model=dict(agent=agent, normalizer=norm, qf=qf, qf_target=qf_target),
         training=dict(optimizer=optimizer, reward_scaler=reward_scaler,
                       q_optimizer=q_optimizer, rb=rb),
-        beta=args.beta_init,
+        beta=args.beta_init, alpha=0.0,
     )  # fmt: skip
 
     with run:  # TRY NOT TO MODIFY: Ctrl-C, kill or a NaN end the run cleanly
@@ -445,6 +442,9 @@ if __name__ == "__main__":
             replay = functools.partial(sample_replay, rb, norm, 1.0, args.off_policy_batch_size,
                                        args.update_epochs * args.num_minibatches)  # fmt: skip
             beta, stats = ipg_update(agent, optimizer, b, beta, args, qf if learning else None,
-                                     replay)  # fmt: skip
+                                     replay, alpha)  # fmt: skip
             stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}
-            run.end_iteration(stats, beta=beta)  # TRY NOT TO MODIFY: log, evaluate, save
+            if args.target_std is not None:  # the sigma rule: SAC's eq. 18, two-sided (docs)
+                alpha = sigma_rule(alpha, stats["charts/policy_entropy"], act_dim, args.target_std)
+                stats["ipg/alpha"] = alpha
+            run.end_iteration(stats, beta=beta, alpha=alpha)  # TRY NOT TO MODIFY: log, save

@@ -26,7 +26,7 @@ from torch.distributions import Normal, kl_divergence
 
 from common import cli, diagnostics
 from common.gae import compute_gae
-from common.her import ReplayBuffer
+from common.her import ReplayBuffer, sample_replay
 from common.normalizer import RewardScaler, RunningMeanStd
 from common.rollout import collect_rollout, make_vector_env
 from common.run import Run, RunArgs
@@ -196,23 +196,6 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
                 "mean": pi_old.mean.reshape(-1, act_dim), "std": pi_old.stddev.reshape(-1, act_dim),
                 "advantages": advantages.flatten(),
                 "returns": (advantages + values).flatten()}  # fmt: skip
-
-
-def sample_replay(rb: ReplayBuffer, norm, reward_scale: float, batch_size: int,
-                  count: int = 1, rng=None) -> list[dict]:  # fmt: skip
-    """``count`` replay batches of tensors, inputs normalised, rewards scaled: one draw of
-    ``count * batch_size`` transitions, split (``rng``: a generator other than the buffer's)."""
-    data = rb.sample(batch_size * count, rng)
-    goal = data["desired_goal"] if norm.goal_task else None  # after HER's relabelling
-    tensors = {
-        "obs": norm.inputs(data["obs"], goal),
-        "next_obs": norm.inputs(data["next_obs"], goal),
-        "actions": torch.as_tensor(data["actions"]),
-        "rewards": torch.as_tensor(data["rewards"] * reward_scale),
-        "terminations": torch.as_tensor(data["terminations"]),
-    }
-    chunks = {key: t.split(batch_size) for key, t in tensors.items()}
-    return [{key: chunks[key][i] for key in chunks} for i in range(count)]
 
 
 # ALGO LOGIC: the critic step (eq. 6-7)

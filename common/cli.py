@@ -117,14 +117,19 @@ def refuse_ignored(argv: list[str], ignored: dict[str, str]) -> None:
 
 def check_her(args, argv: list[str], goal_task: bool) -> None:
     """IPG's flags that would be ignored (HER's without goals or with --no-her, the replay batch
-    size with on-policy states) are refused, and so is HER on a task it cannot serve."""
+    size with on-policy states, the action penalty at nu = 0) are refused, and so are a negative
+    penalty, a non-positive target sigma and HER on a task it cannot serve."""
     her_flags = ("--her-n-sampled-goal", "--her-goal-selection-strategy")
     ignored = dict.fromkeys(her_flags, "--no-her") if not args.her else {}  # flag: why ignored
     if not goal_task:
         ignored = dict.fromkeys(("--her", *her_flags), f"{args.env_id} is not a goal task")
     if args.off_policy_states == "batch":
         ignored["--off-policy-batch-size"] = "--off-policy-states batch"
+    if args.nu == 0 and not args.use_cv:
+        ignored["--action-l2"] = "no off-policy term at nu = 0"
     refuse_ignored(argv, ignored)
+    if args.action_l2 < 0 or args.target_std is not None and args.target_std <= 0:
+        fail("--action-l2 must be non-negative and --target-std positive")
     if goal_task and args.her and (why := hindsight_refusal(args.env_id)):
         fail(why)
 

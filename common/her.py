@@ -36,6 +36,7 @@ from collections.abc import Callable
 
 import gymnasium as gym
 import numpy as np
+import torch
 
 GOAL_SELECTION_STRATEGIES = ("future", "final", "episode")
 
@@ -269,3 +270,20 @@ def sparse_return_range(compute_reward, goal_dim: int, gamma: float) -> tuple | 
     far = goal + np.array([[0.0], [1e3]])
     rewards = np.asarray(compute_reward(far, goal), np.float64)
     return (-1.0 / (1.0 - gamma), 0.0) if rewards.tolist() == [0.0, -1.0] else None
+
+
+def sample_replay(rb: ReplayBuffer, norm, reward_scale: float, batch_size: int,
+                  count: int = 1, rng=None) -> list[dict]:  # fmt: skip
+    """``count`` replay batches of tensors, inputs normalised, rewards scaled: one draw of
+    ``count * batch_size`` transitions, split (``rng``: a generator other than the buffer's)."""
+    data = rb.sample(batch_size * count, rng)
+    goal = data["desired_goal"] if norm.goal_task else None  # after HER's relabelling
+    tensors = {
+        "obs": norm.inputs(data["obs"], goal),
+        "next_obs": norm.inputs(data["next_obs"], goal),
+        "actions": torch.as_tensor(data["actions"]),
+        "rewards": torch.as_tensor(data["rewards"] * reward_scale),
+        "terminations": torch.as_tensor(data["terminations"]),
+    }
+    chunks = {key: t.split(batch_size) for key, t in tensors.items()}
+    return [{key: chunks[key][i] for key in chunks} for i in range(count)]

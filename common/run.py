@@ -147,7 +147,7 @@ class Run:
                 if hasattr(part, "end_episodes"):  # replay: the envs restart with new episodes
                     part.end_episodes()
             checkpoint.set_rng_states(r["rng"])
-            self.scalars = {key: r["scalars"][key] for key in scalars}
+            self.scalars = {key: r["scalars"].get(key, value) for key, value in scalars.items()}
             self.global_step, self.train_time = r["global_step"], r["train_time"]
             self.last_eval, self.last_save = r["last_eval"], r["last_save"]
             self.eval_seeds, self.recent_success = r["eval_seeds"], r["recent_success"]

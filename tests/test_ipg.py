@@ -402,3 +402,50 @@ def test_the_control_variate_waits_for_the_critic(tmp_path):
         runs.append({tag: v for tag, v in tags.items() if tag != "charts/SPS"})
     assert "losses/policy_loss" in runs[0] and "ipg/cv_mean" not in runs[1]
     assert runs[0] == runs[1]
+
+
+def test_sigma_rule_is_one_step_of_dual_ascent_on_the_target_entropy():
+    """alpha moves by 0.01 (H_target - H), H_target = act_dim * (log(2 pi e) / 2 + log sigma*)."""
+    h_target = 4 * (0.5 * np.log(2 * np.pi * np.e) + np.log(0.5))
+    assert ipg_her.sigma_rule(0.3, h_target - 2.0, 4, 0.5) == pytest.approx(0.3 + 0.02)
+    assert ipg_her.sigma_rule(0.3, h_target + 5.0, 4, 0.5) == pytest.approx(0.3 - 0.05)
+
+
+@pytest.mark.parametrize("start_std", [0.2, 5.0])
+def test_sigma_rule_grows_sigma_below_the_target_and_shrinks_it_above(start_std):
+    """The rule alone (no critic, no KL penalty): from below the target sigma grows, from above it
+    shrinks (alpha turns negative, which SAC's one-sided rule cannot), and it ends near target."""
+    torch.manual_seed(0)
+    agent = ipg_her.Agent(3, 2, hidden=16, init_log_std=float(np.log(start_std)))
+    optimizer = torch.optim.Adam(agent.parameters(), lr=0.05)
+    args = ipg_her.Args(nu=1.0, target_std=1.0, num_minibatches=1, update_epochs=5)
+    alpha, alphas = 0.0, []
+    for _ in range(60):
+        b = random_batch(32, 3, 2, agent)
+        _, stats = ipg_her.ipg_update(agent, optimizer, b, 0.0, args, alpha=alpha)
+        alpha = ipg_her.sigma_rule(alpha, stats["charts/policy_entropy"], 2, args.target_std)
+        alphas.append(alpha)
+    sigma = agent.actor_logstd.exp().mean().item()
+    assert (alphas[0] > 0) == (start_std < 1.0)  # the first step's sign: towards the target
+    assert (sigma > start_std) == (start_std < 1.0)
+    assert 0.5 < sigma < 2.0, sigma
+
+
+def test_action_penalty_adds_the_gradient_of_l2_mean_mu_squared():
+    """One SGD step (lr 1, no KL, no clipping) with --action-l2 0.5 moves the policy by the step
+    without it plus the gradient of 0.5 * mean(mu(s)^2) over the off-policy states."""
+    torch.manual_seed(0)
+    agent, qf = ipg_her.Agent(5, 2, hidden=32), ipg_her.QNetwork(5, 2, 32)
+    b, states = random_batch(64, 5, 2, agent), torch.randn(48, 5)
+    steps = []
+    for l2 in (0.0, 0.5):
+        a = ipg_her.Agent(5, 2, hidden=32)
+        a.load_state_dict(agent.state_dict())
+        args = ipg_her.Args(nu=1.0, action_l2=l2, num_minibatches=1, update_epochs=1,
+                            vf_coef=0.0, max_grad_norm=1e9)  # fmt: skip
+        ipg_her.ipg_update(a, torch.optim.SGD(a.parameters(), lr=1.0), b, 0.0, args, qf,
+                           replay_of(states))  # fmt: skip
+        steps.append(torch.cat([p.detach().flatten() for p in a.actor_parameters()]))
+    grads = torch.autograd.grad(0.5 * agent.actor_mean(states).pow(2).mean(),
+                                agent.actor_parameters(), materialize_grads=True)  # fmt: skip
+    torch.testing.assert_close(steps[0] - steps[1], torch.cat([g.flatten() for g in grads]))
