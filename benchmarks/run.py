@@ -81,8 +81,8 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     control variate, with a small and a large on-policy batch, and IPG and Q-Prop variants on
     Hopper at 300k steps (``--only FetchReach`` or ``--only Hopper`` runs one task); ``push``:
     IPG+HER on FetchPush-v4 with its earlier controls; ``fetch``: ``ipg_her.py`` with no flag but
-    the task's, Push 5 seeds x 300k, PickAndPlace 3 x 500k, Slide 3 x 1M; ``quick``: the paper's
-    shape on tiny budgets."""
+    the task's, Push 5 fresh seeds x 300k, PickAndPlace 3 x 500k, Slide 3 x 1M; ``quick``: the
+    paper's shape on tiny budgets."""
     fetch = lambda name, script, *flags: (name, script, "FetchReach-v4", flags)  # noqa: E731
     hopper = lambda name, script, *flags: (name, script, "Hopper-v5", flags)  # noqa: E731
     fetch_eval = ("--total-timesteps", str(FETCH_STEPS), "--eval-freq", "2500")
@@ -192,7 +192,7 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
                 (f"{name}_nu0.8", "ipg_her.py", "FetchPush-v4", mixed)]  # fmt: skip
     elif suite == "fetch":  # evaluated every 10,000 steps on 50 episodes, resumable
         every = ("--eval-freq", "10000", "--eval-episodes", "50", "--resume-freq", "50000")
-        tasks = {"FetchPush-v4": (300_000, (1, 2, 3, 4, 5)),
+        tasks = {"FetchPush-v4": (300_000, (4, 5, 6, 7, 8)),  # its settings were tuned on 1-3
                  "FetchPickAndPlace-v4": (500_000, (1, 2, 3)),
                  "FetchSlide-v4": (1_000_000, (1, 2, 3))}  # fmt: skip
         return [Run(f"ipg_her_{steps // 1000}k", "ipg_her.py", env_id, seed,

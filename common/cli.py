@@ -44,12 +44,24 @@ def fail(message: str) -> NoReturn:
     sys.exit(2)
 
 
-def parse_args(args_class: type[A], argv: list[str] | None = None, prog: str | None = None) -> A:
-    """``tyro.cli``, with a parse error reduced to one line (tyro draws a box)."""
-    captured = io.StringIO()
+def parse_args(args_class: type[A], argv: list[str] | None = None, prog: str | None = None,
+               task_defaults: dict | None = None) -> A:  # fmt: skip
+    """``tyro.cli``, with a parse error reduced to one line (tyro draws a box). ``task_defaults``
+    ``{env_id: {field: value}}``: the task's own defaults, for the fields not given in ``argv``;
+    one line says which were taken."""
+    captured, argv = io.StringIO(), sys.argv[1:] if argv is None else argv
     try:
         with contextlib.redirect_stderr(captured):
-            return tyro.cli(args_class, args=argv, prog=prog)
+            args = tyro.cli(args_class, args=argv, prog=prog)
+        given = {a.split("=")[0] for a in argv}
+        own = {k: v for k, v in (task_defaults or {}).get(args.env_id, {}).items()
+               if flag(k) not in given}  # fmt: skip
+        for name, value in own.items():
+            setattr(args, name, value)
+        if own:
+            print(f"{args.env_id}'s own defaults: "
+                  f"{', '.join(f'{flag(k)} {v}' for k, v in own.items())}", flush=True)  # fmt: skip
+        return args
     except SystemExit as e:
         if e.code:
             text = " ".join(re.sub(r"[│╭╮╰╯─]|-{3,}", " ", captured.getvalue()).split())
@@ -118,7 +130,8 @@ def refuse_ignored(argv: list[str], ignored: dict[str, str]) -> None:
 def check_her(args, argv: list[str], goal_task: bool) -> None:
     """IPG's flags that would be ignored (HER's without goals or with --no-her, the replay batch
     size with on-policy states, the action penalty at nu = 0) are refused, and so are a negative
-    penalty, a non-positive target sigma and HER on a task it cannot serve."""
+    penalty, a non-positive target sigma or replay batch, and HER on a task it cannot serve."""
+    check_positive(args, "off_policy_batch_size")
     her_flags = ("--her-n-sampled-goal", "--her-goal-selection-strategy")
     ignored = dict.fromkeys(her_flags, "--no-her") if not args.her else {}  # flag: why ignored
     if not goal_task:

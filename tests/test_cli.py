@@ -162,3 +162,19 @@ def test_a_renderer_that_cannot_load_is_refused_before_training(tmp_path):
                             env=env, capture_output=True, text=True, timeout=120)  # fmt: skip
     assert_clean_error(result, "MUJOCO_GL=no-such-renderer", "unset MUJOCO_GL")
     assert not tmp_path.exists() or not run_dirs(tmp_path)
+
+
+def test_a_tasks_own_defaults_apply_where_no_flag_was_given(capsys):
+    """ipg_her.py's TASK_DEFAULTS: FetchPush takes them, a flag given wins, FetchReach keeps the
+    Args defaults; one line names what was taken."""
+
+    def parse(*argv):
+        return cli.parse_args(ipg_her.Args, list(argv), task_defaults=ipg_her.TASK_DEFAULTS)
+
+    push = parse("--env-id", "FetchPush-v4", "--hidden=64")
+    taken = (push.hidden, push.target_std, push.normalization, push.action_l2)
+    assert taken == (64, 1.0, "paper", 1.0)
+    line = "FetchPush-v4's own defaults: --target-std 1.0, --normalization paper, --action-l2 1.0"
+    assert line in capsys.readouterr().out
+    assert vars(parse("--env-id", "FetchReach-v4")) == vars(ipg_her.Args())
+    assert capsys.readouterr().out == ""
