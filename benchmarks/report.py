@@ -43,6 +43,11 @@ BUDGETS = {  # the success table's columns: FetchReach's scale, or the harder Fe
     "fetch": (100_000, 150_000, 200_000, 300_000, 500_000, 1_000_000),
 }
 LEVELS = {"push": (0.5, 0.9), "fetch": (0.5, 0.7, 0.9)}  # the reach table's success levels
+ANCHORS = {  # (steps, level): first evaluations of the zoo's TQC+HER agents (v1, one env, one seed)
+    "FetchPush-v4": ((100_000, 0.5), (200_000, 0.9)),
+    "FetchPickAndPlace-v4": ((150_000, 0.5), (350_000, 0.9)),
+    "FetchSlide-v4": ((300_000, 0.5),),
+}
 FRESH_SEED = 11  # mixing: the finalists ran on seeds from 11 on, the screens on seeds 1-5
 LABELS = {"ppo_kl": "PPO-KL", "qprop_ppo": "Q-Prop", "ipg": "IPG (no HER)", "ipg_her": "IPG+HER"}
 
@@ -613,9 +618,16 @@ def main(args: Args) -> int:
             names = sorted(g.split("__")[0] for g in groups if g.endswith(f"__{env_id}"))
             fig, ax = plt.subplots(figsize=(7, 4))
             if env_id.startswith("Fetch"):
-                plot(ax, groups, names, env_id, "eval/success_rate", rng, per_episode=True)
+                plot(ax, groups, names, env_id, "eval/success_rate", rng,
+                     per_episode=args.suite != "fetch")  # fmt: skip
             else:
                 plot(ax, groups, names, env_id, "charts/episodic_return", rng, smooth=20)
+            if args.suite == "fetch" and env_id in ANCHORS:  # the level to beat
+                steps, levels = zip(*ANCHORS[env_id], strict=True)
+                ax.plot(steps, levels, "k*", markersize=10, label="TQC+HER zoo agent reached")
+                for level in levels:
+                    ax.axhline(level, color="k", linestyle=":", linewidth=0.8)
+                ax.legend(fontsize=8)
             fig.tight_layout()
             figures.append(f"{args.suite}_{env_id}.png")
             fig.savefig(figures_dir / figures[-1], dpi=100)

@@ -308,3 +308,18 @@ def test_early_evaluation_is_labelled_with_the_step_it_was_at():
     runs = [run(20_480, 1.0), run(25_000, 1.0)]
     assert report.steps_at(runs, "eval/episodic_return", 100_000) == "81,920-100,000"
     assert report.steps_at(runs, "eval/episodic_return", 10_000) == "-"
+
+
+def test_fetch_suite_report_draws_each_task_with_its_anchor_and_three_reach_levels(tmp_path):
+    """The fetch suite: one figure per task in environment steps with the TQC+HER agent's
+    points on it, and a reach table at 0.5, 0.7 and 0.9."""
+    runs = tmp_path / "runs" / "fetch"
+    for seed in (4, 5):
+        write_run(runs, "ipg_her_300k", "FetchPush-v4", seed, [-50] * 15, [0.0, 0.6, 0.8, 0.95])
+    args = report.Args(suite="fetch", runs_dir=str(tmp_path / "runs"),
+                       results_dir=str(tmp_path / "results"))  # fmt: skip
+    assert report.main(args) == 0
+    assert (tmp_path / "results" / "fetch_FetchPush-v4.png").stat().st_size > 0
+    text = (tmp_path / "results" / "results.md").read_text()
+    assert "first eval >= 0.7" in text and "| 2,000 |" in text  # 0.9 first at 2,000 steps
+    assert report.ANCHORS["FetchPush-v4"] == ((100_000, 0.5), (200_000, 0.9))  # the issue's table
