@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 import torch
-from conftest import ROOT, run_dirs, run_script, scalars
+from conftest import ROOT, assert_clean_error, run_dirs, run_script, scalars
 
 import ipg_her
 from common import checkpoint, evaluate
@@ -42,6 +42,35 @@ def refused(capsys, *argv: str) -> str:
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: "), lines
     return lines[0]
+
+
+class Payload:
+    """A pickle that runs a shell command when unpickled (what a shared model file could hold)."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return os.system, (f"touch {self.marker}",)
+
+
+def test_a_model_or_resume_file_that_would_run_code_is_refused_without_running_it(tmp_path):
+    """model.pt through common.evaluate and load_policy, resume.pt through --resume: each is
+    refused with one line, and the command it holds never runs (it would create the marker)."""
+    marker = tmp_path / "PWNED"
+    evil = {"format_version": checkpoint.FORMAT_VERSION, "agent": Payload(marker)}
+    torch.save(evil, tmp_path / "model.pt")
+    result = subprocess.run([sys.executable, "-m", "common.evaluate", str(tmp_path / "model.pt")],
+                            cwd=ROOT, capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert_clean_error(result, "was refused")
+    with pytest.raises(checkpoint.CheckpointError, match="was refused"):
+        evaluate.load_policy(str(tmp_path))
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    torch.save(evil | {"script": "ipg_her", "args": {}}, run_dir / "resume.pt")
+    result = run_script("ipg_her.py", tmp_path / "logs", "--resume", str(run_dir), timeout=120)
+    assert_clean_error(result, "was refused")
+    assert not marker.exists(), "unpickling ran the file's command"
 
 
 def test_bad_input_gets_one_clear_line(hopper_run, tmp_path, capsys):
