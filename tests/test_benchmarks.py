@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import scalars
 
-from benchmarks import report, run, update_speed
+from benchmarks import profile_phases, report, run, update_speed
 
 
 def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path, capsys):
@@ -125,3 +125,47 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
     assert budgets == {("FetchPush-v4", "300000"): [4, 5, 6, 7, 8],
                        ("FetchPickAndPlace-v4", "500000"): [1, 2, 3],
                        ("FetchSlide-v4", "1000000"): [1, 2, 3]}  # fmt: skip
+
+
+def test_the_profile_gives_each_sample_to_its_phase():
+    """py-spy's raw lines (``frame;frame;... count``) summed into the phases of the docs' tables:
+    the same function (``Agent.dist``, a normaliser's ``__call__``) counts where it is called."""
+    stacks = {
+        "collect_rollout (common/rollout.py:51);SyncVectorEnv.step (gymnasium/vector/"
+        "sync_vector_env.py:338);HopperEnv.step (gymnasium/envs/mujoco/hopper_v5.py:290)": 5,
+        "collect_rollout (common/rollout.py:47);Agent.dist (ppo_kl.py:120);Module._call_impl "
+        "(torch/nn/modules/module.py:1)": 3,
+        "ppo_kl_update (ppo_kl.py:155);Agent.dist (ppo_kl.py:120)": 7,
+        "collect_rollout (common/rollout.py:45);RunningMeanStd.update (common/normalizer.py:30)": 2,
+        "RewardScaler.__call__ (common/normalizer.py:110)": 1,
+        "critic_step (ipg_her.py:214);QNetwork.forward (ipg_her.py:180)": 4,
+        "sample_replay (common/her.py:279);HerReplayBuffer.sample (common/her.py:230)": 6,
+        "end_iteration (common/run.py:193);finished (common/evaluate.py:195)": 8,
+        "Adam.__init__ (torch/optim/adam.py:35)": 9,
+        "Run.end_iteration (common/run.py:190);SummaryWriter.add_scalar (tensorboard.py:1)": 2,
+        "QNetwork.forward (ipg_her.py:180);Module._call_impl (torch/nn/modules/module.py:1)": 1,
+    }
+    raw = "\n".join(f"<module> (ipg_her.py:1);{stack} {n}" for stack, n in stacks.items())
+    assert profile_phases.phase_samples(raw) == {
+        "stepping": 5, "policy inference": 3, "policy update": 7, "normalisation": 2,
+        "advantages and reward scaling": 1, "critic steps": 4, "replay sampling": 6,
+        "evaluation": 8, "logging and checkpoints": 2, "start-up and the rest": 10,
+    }  # fmt: skip
+
+
+def test_the_profile_of_a_tiny_run_names_its_phases(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    cmd = [sys.executable, "benchmarks/profile_phases.py", "ppo_kl.py", "--", "--total-timesteps",
+           "2048", "--num-envs", "2", "--num-steps", "512", "--eval-freq", "0",
+           "--eval-episodes", "1", "--log-dir", str(tmp_path)]  # fmt: skip
+    out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    lines = [json.loads(line) for line in out.stdout.splitlines()]
+    phases = {line["phase"]: line for line in lines}
+    assert {"stepping", "policy update", "all samples"} <= set(phases)
+    assert abs(sum(line["share"] for line in lines[:-1]) - 1) < 0.01
