@@ -215,6 +215,7 @@ def plot(
     rng,
     smooth: int = 1,
     per_episode: bool = False,
+    median: bool = False,
 ) -> None:
     warnings.simplefilter(
         "ignore", RuntimeWarning
@@ -228,8 +229,12 @@ def plot(
         grid = np.linspace(0, end, 200)
         curves = np.stack([curve_on_grid(p, grid, smooth) for p in runs])
         x = grid / 50 if per_episode else grid  # FetchReach: 50 steps per episode
-        ax.plot(x, np.nanmean(curves, 0), label=f"{LABELS.get(name, name)} ({len(runs)} seeds)")
-        lo, hi = bootstrap_band(curves, rng)
+        centre = np.nanmedian(curves, 0) if median else np.nanmean(curves, 0)
+        ax.plot(x, centre, label=f"{LABELS.get(name, name)} ({len(runs)} seeds)")
+        if median:  # the band: the lowest and highest seed
+            lo, hi = np.nanmin(curves, 0), np.nanmax(curves, 0)
+        else:
+            lo, hi = bootstrap_band(curves, rng)
         ax.fill_between(x, lo, hi, alpha=0.2)
     ax.set_xlabel("episodes" if per_episode else "environment steps")
     ax.set_ylabel(
@@ -619,7 +624,7 @@ def main(args: Args) -> int:
             fig, ax = plt.subplots(figsize=(7, 4))
             if env_id.startswith("Fetch"):
                 plot(ax, groups, names, env_id, "eval/success_rate", rng,
-                     per_episode=args.suite != "fetch")  # fmt: skip
+                     per_episode=args.suite != "fetch", median=args.suite == "fetch")  # fmt: skip
             else:
                 plot(ax, groups, names, env_id, "charts/episodic_return", rng, smooth=20)
             if args.suite == "fetch" and env_id in ANCHORS:  # the level to beat
@@ -640,6 +645,9 @@ def main(args: Args) -> int:
                 episodes.setdefault(group.split("__")[1], set()).add(run["args"]["eval_episodes"])
     per_task = "; ".join(f"{e}: {' or '.join(sorted(n))}" for e, n in sorted(episodes.items()))
     eval_note = f" (episodes per evaluation: {per_task})" if per_task else ""
+    curves = "mean over seeds with a 95% bootstrap confidence band"
+    if args.suite == "fetch":
+        curves = "median over seeds, the band from the lowest to the highest seed"
     earlier = sorted({r["measured_on"] for g in groups.values() for r in g.values()
                       if "measured_on" in r})  # fmt: skip
     merged_note = (
@@ -704,9 +712,9 @@ evaluation reaches 0.9 success (FetchReach, PickAndPlace; 0.5 on Push, 0.7 on Sl
 over all seeds, a seed that never reached it counting as never. *SPS*: environment steps per
 second of training, evaluation excluded; *wall time*: first to last logged event (a resumed
 run: summed over its sessions, with the work an interruption threw away).
-Curves: mean over seeds with a 95% bootstrap confidence band, Hopper smoothed over 20 logged
-episodes, FetchReach returns over 10. The success table gives, for goal tasks, the median
-[min, max] over seeds of the last evaluation at or before each budget.
+Curves: {curves}, Hopper smoothed over 20 logged episodes, FetchReach returns
+over 10. The success table gives, for goal tasks, the median [min, max] over seeds of the last
+evaluation at or before each budget.
 """
     (results / "results.md").write_text(text)
     print(text)

@@ -323,3 +323,19 @@ def test_fetch_suite_report_draws_each_task_with_its_anchor_and_three_reach_leve
     text = (tmp_path / "results" / "results.md").read_text()
     assert "first eval >= 0.7" in text and "| 2,000 |" in text  # 0.9 first at 2,000 steps
     assert report.ANCHORS["FetchPush-v4"] == ((100_000, 0.5), (200_000, 0.9))  # the issue's table
+
+
+def test_fetch_figures_draw_the_median_seed_and_the_band_from_lowest_to_highest():
+    """Issue 29 asks for the median and a band over seeds: with 0.0, 0.2 and 1.0 at the end the
+    line ends at 0.2 (the mean would be 0.4) and the band spans 0 to 1."""
+    import matplotlib.pyplot as plt
+
+    ends = {1: 0.0, 2: 0.2, 3: 1.0}
+    groups = {"ipg_her__FetchPush-v4": {s: {"eval/success_rate": [[0, 0.0], [10, v]]}
+                                        for s, v in ends.items()}}  # fmt: skip
+    fig, ax = plt.subplots()
+    report.plot(ax, groups, ["ipg_her"], "FetchPush-v4", "eval/success_rate", None, median=True)
+    assert ax.lines[0].get_ydata()[-1] == pytest.approx(0.2)
+    band = ax.collections[0].get_paths()[0].vertices[:, 1]
+    assert band.min() == pytest.approx(0.0) and band.max() == pytest.approx(1.0)
+    plt.close(fig)
