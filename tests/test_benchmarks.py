@@ -108,12 +108,14 @@ def test_a_dry_run_piped_into_head_ends_quietly():
 
 def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation_grid():
     """Issue 29's grid: Push 5 seeds x 300k, PickAndPlace 3 x 500k, Slide 3 x 1M, evaluated every
-    10,000 steps on 50 episodes, resumable; nothing else of the defaults is changed."""
+    10,000 steps on 50 episodes, resumable; nothing else of the defaults is changed but nu in
+    the mixing runs (0.5 and 0.8 on Push, 3 seeds x 200k)."""
     runs = run.suite_runs("fetch")
     budgets = {}
     for r in runs:
         assert r.script == "ipg_her.py"
         flags = dict(zip(r.flags[::2], r.flags[1::2], strict=True))
+        nu = flags.pop("--nu", "1.0")  # the mixing runs: nu alone differs
         assert set(flags) == {
             "--total-timesteps",
             "--eval-freq",
@@ -121,10 +123,12 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
             "--resume-freq",
         }
         assert (flags["--eval-freq"], flags["--eval-episodes"]) == ("10000", "50")
-        budgets.setdefault((r.env_id, flags["--total-timesteps"]), []).append(r.seed)
-    assert budgets == {("FetchPush-v4", "300000"): [4, 5, 6, 7, 8],
-                       ("FetchPickAndPlace-v4", "500000"): [1, 2, 3],
-                       ("FetchSlide-v4", "1000000"): [1, 2, 3]}  # fmt: skip
+        budgets.setdefault((r.env_id, flags["--total-timesteps"], nu), []).append(r.seed)
+    assert budgets == {("FetchPush-v4", "300000", "1.0"): [4, 5, 6, 7, 8],
+                       ("FetchPickAndPlace-v4", "500000", "1.0"): [1, 2, 3],
+                       ("FetchSlide-v4", "1000000", "1.0"): [1, 2, 3],
+                       ("FetchPush-v4", "200000", "0.5"): [4, 5, 6],
+                       ("FetchPush-v4", "200000", "0.8"): [4, 5, 6]}  # fmt: skip
 
 
 def test_the_profile_gives_each_sample_to_its_phase():
