@@ -113,6 +113,8 @@ class Args(RunArgs):
     """the sigma rule: hold H(pi) at the entropy of N(0, target_std^2) per action (None: off)"""
     action_l2: float = 0.0
     """weight of the penalty mean(mu(s)^2) beside the off-policy term (OpenAI's HER: 1)"""
+    twin_critic: bool = False
+    """two critics, the target the smaller of their Q_w' (TD3's clipped double Q)"""
     clip_q_target: bool = True
     """goal tasks with Fetch's 0/-1 reward: clip critic targets to [-1/(1-gamma), 0]"""
 
@@ -187,22 +189,24 @@ class Agent(nn.Module):
 
 
 class QNetwork(nn.Module):
-    """Critic Q_w(s, a) of the action the environment executes: ``a`` is clipped to the bounds
-    first, so Q_w is never asked about actions it was not trained on."""
+    """Critic Q_w(s, a) of the executed action (``a`` clipped to the bounds: never one it was not
+    trained on); ``twin``: a second network, for TD3's clipped double-Q target (Fujimoto 2018)."""
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden: int = 128, low=-np.inf, high=np.inf):
+    def __init__(self, obs_dim, act_dim, hidden=128, low=-np.inf, high=np.inf, twin=False):
         super().__init__()
-        self.net = nn.Sequential(
+        self.net, *twin_net = [nn.Sequential(
             nn.Linear(obs_dim + act_dim, hidden), nn.ReLU(),
             nn.Linear(hidden, hidden), nn.ReLU(),
             nn.Linear(hidden, 1),
-        )  # fmt: skip
+        ) for _ in range(1 + twin)]  # fmt: skip
+        self.twin = nn.ModuleList(twin_net)  # empty without twin
         self.register_buffer("low", torch.as_tensor(low, dtype=torch.float32).expand(act_dim))
         self.register_buffer("high", torch.as_tensor(high, dtype=torch.float32).expand(act_dim))
 
-    def forward(self, x: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
-        a = torch.clamp(a, self.low, self.high)  # the executed action
-        return self.net(torch.cat([x, a], -1)).squeeze(-1)
+    def forward(self, x: torch.Tensor, a: torch.Tensor, both: bool = False):  # both: [Q_1, Q_2]
+        xa = torch.cat([x, torch.clamp(a, self.low, self.high)], -1)  # the executed action
+        qs = [net(xa).squeeze(-1) for net in (self.net, *self.twin)[: 2 if both else 1]]
+        return qs if both else qs[0]
 
 
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
@@ -232,20 +236,20 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
 def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent,
                 data: dict, gamma: float, tau: float, target_range=None):  # fmt: skip
     """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
-    with torch.no_grad():
-        next_q = qf_target(data["next_obs"], agent.actor_mean(data["next_obs"]))  # Q_w'(s', mu(s'))
-        target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q
+    with torch.no_grad():  # Q_w'(s', mu(s')); twin: the smaller of the two (TD3)
+        next_q = torch.stack(qf_target(data["next_obs"], agent.actor_mean(data["next_obs"]), True))
+        target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q.min(0).values
         if target_range is not None:
             target = target.clamp(*target_range)  # the returns the rewards allow (OpenAI's HER)
-    q = qf(data["obs"], data["actions"])
-    loss = 0.5 * ((q - target) ** 2).mean()
+    qs = qf(data["obs"], data["actions"], both=True)
+    loss = sum(0.5 * ((q - target) ** 2).mean() for q in qs)  # twin: each network its own
     q_optimizer.zero_grad()
     loss.backward()
     q_optimizer.step()
     with torch.no_grad():
         for p, p_target in zip(qf.parameters(), qf_target.parameters(), strict=True):
             p_target.lerp_(p, tau)  # w' <- tau w + (1 - tau) w'   (eq. 6)
-    return loss.item(), q.mean().item()
+    return loss.item(), qs[0].mean().item()
 
 
 # ALGO LOGIC: the control variate (eq. 9)
@@ -369,7 +373,7 @@ if __name__ == "__main__":
     optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
     norm = InputNormalizer(obs_dim, goal_dim)
     low, high = envs.single_action_space.low, envs.single_action_space.high
-    qf = QNetwork(obs_dim + goal_dim, act_dim, hidden=args.hidden, low=low, high=high)
+    qf = QNetwork(obs_dim + goal_dim, act_dim, args.hidden, low, high, args.twin_critic)
     qf_target = copy.deepcopy(qf)
     q_optimizer = optim.Adam(qf.parameters(), lr=args.critic_learning_rate, fused=True)
     rb = ReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, run.streams.replay_seed)
@@ -412,14 +416,11 @@ if __name__ == "__main__":
             if learning and args.critic_steps > 0:
                 clip = args.clip_q_target and q_range is not None  # to the returns allowed
                 target_range = (q_range[0] * reward_scale, 0.0) if clip else None
-                batches = sample_replay(
-                    rb, norm, reward_scale, args.critic_batch_size, args.critic_steps
-                )
-                for data in batches:
-                    critic_loss, q_values = critic_step(
-                        qf, qf_target, q_optimizer, agent, data, args.gamma, args.tau, target_range
-                    )
-                run.log({"losses/critic_loss": critic_loss, "losses/q_values": q_values})
+                for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size,
+                                          args.critic_steps):  # fmt: skip
+                    q_loss, q_mean = critic_step(qf, qf_target, q_optimizer, agent, data,
+                                                 args.gamma, args.tau, target_range)  # fmt: skip
+                run.log({"losses/critic_loss": q_loss, "losses/q_values": q_mean})
 
             # ALGO LOGIC: advantages (eq. 3-4) and the control variate (eq. 9)
             b = make_batch(agent, ro, norm(raw_obs), args.gamma, args.gae_lambda)
@@ -443,8 +444,7 @@ if __name__ == "__main__":
                                        args.update_epochs * args.num_minibatches)  # fmt: skip
             beta, stats = ipg_update(agent, optimizer, b, beta, args, qf if learning else None,
                                      replay, alpha)  # fmt: skip
-            stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}
+            stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"], "ipg/alpha": alpha}
             if args.target_std is not None:  # the sigma rule: SAC's eq. 18, two-sided (docs)
                 alpha = sigma_rule(alpha, stats["charts/policy_entropy"], act_dim, args.target_std)
-                stats["ipg/alpha"] = alpha
             run.end_iteration(stats, beta=beta, alpha=alpha)  # TRY NOT TO MODIFY: log, save

@@ -369,14 +369,11 @@ if __name__ == "__main__":
             learning = global_step >= args.learning_starts and rb.num_sampleable() > 0
             learning = learning and args.eta_mode != "none"
             if learning and args.critic_steps > 0:
-                batches = sample_replay(
-                    rb, norm, reward_scale, args.critic_batch_size, args.critic_steps
-                )
-                for data in batches:
-                    critic_loss, q_values = critic_step(
-                        qf, qf_target, q_optimizer, agent, data, args.gamma, args.tau
-                    )
-                run.log({"losses/critic_loss": critic_loss, "losses/q_values": q_values})
+                for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size,
+                                          args.critic_steps):  # fmt: skip
+                    q_loss, q_mean = critic_step(qf, qf_target, q_optimizer, agent, data,
+                                                 args.gamma, args.tau)  # fmt: skip
+                run.log({"losses/critic_loss": q_loss, "losses/q_values": q_mean})
 
             # ALGO LOGIC: advantages (eq. 3-4), the control variate (eq. 9) and eta
             b = make_batch(agent, ro, norm(raw_obs), args.gamma, args.gae_lambda)

@@ -129,8 +129,9 @@ def refuse_ignored(argv: list[str], ignored: dict[str, str]) -> None:
 
 def check_her(args, argv: list[str], goal_task: bool) -> None:
     """IPG's flags that would be ignored (HER's without goals or with --no-her, the replay batch
-    size with on-policy states, the action penalty at nu = 0) are refused, and so are a negative
-    penalty, a non-positive target sigma or replay batch, and HER on a task it cannot serve."""
+    size with on-policy states, the action penalty and the twin critic at nu = 0) are refused,
+    and so are a negative penalty, a non-positive target sigma or replay batch, and HER on a task
+    it cannot serve."""
     check_positive(args, "off_policy_batch_size")
     her_flags = ("--her-n-sampled-goal", "--her-goal-selection-strategy")
     ignored = dict.fromkeys(her_flags, "--no-her") if not args.her else {}  # flag: why ignored
@@ -139,7 +140,7 @@ def check_her(args, argv: list[str], goal_task: bool) -> None:
     if args.off_policy_states == "batch":
         ignored["--off-policy-batch-size"] = "--off-policy-states batch"
     if args.nu == 0 and not args.use_cv:
-        ignored["--action-l2"] = "no off-policy term at nu = 0"
+        ignored["--action-l2"] = ignored["--twin-critic"] = "no off-policy term at nu = 0"
     refuse_ignored(argv, ignored)
     if args.action_l2 < 0 or args.target_std is not None and args.target_std <= 0:
         fail("--action-l2 must be non-negative and --target-std positive")
