@@ -109,13 +109,15 @@ def test_a_dry_run_piped_into_head_ends_quietly():
 def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation_grid():
     """Issue 29's grid: Push 5 seeds x 300k, PickAndPlace 3 x 500k, Slide 3 x 1M, evaluated every
     10,000 steps on 50 episodes, resumable; nothing else of the defaults is changed but nu in
-    the mixing runs (0.5 and 0.8 on Push, 3 seeds x 200k)."""
+    the mixing runs (0.5 and 0.8 on Push, 3 seeds x 200k) and the twin critic on Push's 5."""
     runs = run.suite_runs("fetch")
     budgets = {}
     for r in runs:
         assert r.script == "ipg_her.py"
-        flags = dict(zip(r.flags[::2], r.flags[1::2], strict=True))
-        nu = flags.pop("--nu", "1.0")  # the mixing runs: nu alone differs
+        variant = "twin" if "--twin-critic" in r.flags else "1.0"  # the twin critic's runs
+        pairs = [f for f in r.flags if f != "--twin-critic"]
+        flags = dict(zip(pairs[::2], pairs[1::2], strict=True))
+        nu = flags.pop("--nu", variant)  # the mixing runs: nu alone differs
         assert set(flags) == {
             "--total-timesteps",
             "--eval-freq",
@@ -128,7 +130,8 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
                        ("FetchPickAndPlace-v4", "500000", "1.0"): [1, 2, 3],
                        ("FetchSlide-v4", "1000000", "1.0"): [1, 2, 3],
                        ("FetchPush-v4", "200000", "0.5"): [4, 5, 6],
-                       ("FetchPush-v4", "200000", "0.8"): [4, 5, 6]}  # fmt: skip
+                       ("FetchPush-v4", "200000", "0.8"): [4, 5, 6],
+                       ("FetchPush-v4", "300000", "twin"): [4, 5, 6, 7, 8]}  # fmt: skip
 
 
 def test_the_profile_gives_each_sample_to_its_phase():
