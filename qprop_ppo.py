@@ -101,12 +101,16 @@ class Args(RunArgs):
     """soft target update rate of eq. 6, after every critic step (ipg_her.py: 0.05, OpenAI's HER)"""
     learning_starts: int = 1000
     """environment steps before the critic, and what uses it, starts"""
+    twin_critic: bool = False
+    """two critics, the target the smaller of their Q_w' (TD3's clipped double Q)"""
 
 
 def check_args(args: Args) -> None:
     """Bad input fails here, before anything runs (the shared checks: ``common/cli.py``)."""
     cli.check_common(args)
     cli.check_critic(args)
+    if args.twin_critic and args.eta_mode == "none":
+        cli.fail("--twin-critic would be ignored (--eta-mode none trains no critic): leave it out")
 
 
 # ENV SETUP
@@ -157,22 +161,24 @@ class Agent(nn.Module):
 
 
 class QNetwork(nn.Module):
-    """Critic Q_w(s, a) of the action the environment executes: ``a`` is clipped to the bounds
-    first, so Q_w is never asked about actions it was not trained on."""
+    """Critic Q_w(s, a) of the executed action (``a`` clipped to the bounds: never one it was not
+    trained on); ``twin``: a second network, for TD3's clipped double-Q target (Fujimoto 2018)."""
 
-    def __init__(self, obs_dim: int, act_dim: int, hidden: int = 128, low=-np.inf, high=np.inf):
+    def __init__(self, obs_dim, act_dim, hidden=128, low=-np.inf, high=np.inf, twin=False):
         super().__init__()
-        self.net = nn.Sequential(
+        self.net, *twin_net = [nn.Sequential(
             nn.Linear(obs_dim + act_dim, hidden), nn.ReLU(),
             nn.Linear(hidden, hidden), nn.ReLU(),
             nn.Linear(hidden, 1),
-        )  # fmt: skip
+        ) for _ in range(1 + twin)]  # fmt: skip
+        self.twin = nn.ModuleList(twin_net)  # empty without twin
         self.register_buffer("low", torch.as_tensor(low, dtype=torch.float32).expand(act_dim))
         self.register_buffer("high", torch.as_tensor(high, dtype=torch.float32).expand(act_dim))
 
-    def forward(self, x: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
-        a = torch.clamp(a, self.low, self.high)  # the executed action
-        return self.net(torch.cat([x, a], -1)).squeeze(-1)
+    def forward(self, x: torch.Tensor, a: torch.Tensor, both: bool = False):  # both: [Q_1, Q_2]
+        xa = torch.cat([x, torch.clamp(a, self.low, self.high)], -1)  # the executed action
+        qs = [net(xa).squeeze(-1) for net in (self.net, *self.twin)[: 2 if both else 1]]
+        return qs if both else qs[0]
 
 
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
@@ -202,18 +208,18 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
 def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent,
                 data: dict, gamma: float, tau: float) -> tuple[float, float]:  # fmt: skip
     """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
-    with torch.no_grad():
-        next_q = qf_target(data["next_obs"], agent.actor_mean(data["next_obs"]))  # Q_w'(s', mu(s'))
-        target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q
-    q = qf(data["obs"], data["actions"])
-    loss = 0.5 * ((q - target) ** 2).mean()
+    with torch.no_grad():  # Q_w'(s', mu(s')); twin: the smaller of the two (TD3)
+        next_q = torch.stack(qf_target(data["next_obs"], agent.actor_mean(data["next_obs"]), True))
+        target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q.min(0).values
+    qs = qf(data["obs"], data["actions"], both=True)
+    loss = sum(0.5 * ((q - target) ** 2).mean() for q in qs)  # twin: each network its own
     q_optimizer.zero_grad()
     loss.backward()
     q_optimizer.step()
     with torch.no_grad():
         for p, p_target in zip(qf.parameters(), qf_target.parameters(), strict=True):
             p_target.lerp_(p, tau)  # w' <- tau w + (1 - tau) w'   (eq. 6)
-    return loss.item(), q.mean().item()
+    return loss.item(), qs[0].mean().item()
 
 
 # ALGO LOGIC: the control variate (eq. 9) and its weight eta
@@ -334,7 +340,7 @@ if __name__ == "__main__":
     optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
     norm = RunningMeanStd((obs_dim,))
     low, high = envs.single_action_space.low, envs.single_action_space.high
-    qf = QNetwork(obs_dim, act_dim, args.critic_hidden, low=low, high=high)
+    qf = QNetwork(obs_dim, act_dim, args.critic_hidden, low, high, args.twin_critic)
     qf_target = copy.deepcopy(qf)
     q_optimizer = optim.Adam(qf.parameters(), lr=args.critic_learning_rate, fused=True)
     rb = ReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, run.streams.replay_seed)

@@ -73,6 +73,7 @@ def test_common_checks(capsys, script, argv, needle):
         ("ipg_her", ["--hidden", "0"], "--hidden must be positive"),
         ("ipg_her", ["--nu", "0", "--action-l2", "1"], "--action-l2 would be ignored"),
         ("ipg_her", ["--nu", "0", "--twin-critic"], "--twin-critic would be ignored"),
+        ("qprop_ppo", ["--eta-mode", "none", "--twin-critic"], "--twin-critic would be ignored"),
         ("ipg_her", ["--action-l2", "-1"], "--action-l2 must be non-negative"),
         ("ipg_her", ["--target-std", "0"], "--target-std positive"),
         ("qprop_ppo", ["--critic-hidden", "0"], "--critic-hidden must be positive"),

@@ -129,15 +129,16 @@ def test_ipg_targets_are_clipped_to_target_range(target_range):
     assert not torch.allclose(y, raw)
 
 
-def test_twin_critic_targets_the_smaller_target_q_and_steps_each_network_on_its_own_loss():
+@pytest.mark.parametrize("module", [qprop_ppo, ipg_her], ids=["qprop_ppo", "ipg_her"])
+def test_twin_critic_targets_the_smaller_target_q_and_steps_each_network_on_its_own_loss(module):
     """TD3's clipped double Q (``--twin-critic``): y = r + gamma (1 - d) min(Q_1'(s', mu(s')),
     Q_2'(s', mu(s'))) row by row, by hand, and the step is SGD on 0.5 E[(Q_1 - y)^2] + 0.5
     E[(Q_2 - y)^2]; the second target network sits above the first on some rows and below on
     others, so neither head alone gives the target."""
     torch.manual_seed(0)
-    agent = ipg_her.Agent(OBS, ACT, 16)
-    qf = ipg_her.QNetwork(OBS, ACT, HIDDEN, twin=True)
-    qf_target = ipg_her.QNetwork(OBS, ACT, HIDDEN, twin=True)
+    agent = module.Agent(OBS, ACT, 16)
+    qf = module.QNetwork(OBS, ACT, HIDDEN, twin=True)
+    qf_target = module.QNetwork(OBS, ACT, HIDDEN, twin=True)
     d = replay_batch()
     with torch.no_grad():
         mu_next = agent.actor_mean(d["next_obs"])
@@ -155,19 +156,20 @@ def test_twin_critic_targets_the_smaller_target_q_and_steps_each_network_on_its_
     grads = torch.autograd.grad(loss, list(copy_.parameters()))
     expected = flat(qf) - LR * torch.cat([g.flatten() for g in grads])
     optimizer = torch.optim.SGD(qf.parameters(), lr=LR)
-    got_loss, got_mean_q = call(ipg_her, qf, qf_target, optimizer, agent, d)
+    got_loss, got_mean_q = call(module, qf, qf_target, optimizer, agent, d)
     assert got_loss == pytest.approx(loss.item(), rel=1e-5)
     assert got_mean_q == pytest.approx(q1.mean().item(), rel=1e-5)  # the policy's critic
     torch.testing.assert_close(flat(qf), expected)
 
 
-def test_one_critic_is_the_twin_critics_first_network_and_keeps_its_parameter_names():
+@pytest.mark.parametrize("module", [qprop_ppo, ipg_her], ids=["qprop_ppo", "ipg_her"])
+def test_one_critic_is_the_twin_critics_first_network_and_keeps_its_parameter_names(module):
     """Without --twin-critic the critic is the network it always was: the same parameters and
     names (checkpoints of earlier runs load), and ``both=True`` gives that one Q."""
     torch.manual_seed(0)
-    one = ipg_her.QNetwork(OBS, ACT, HIDDEN)
+    one = module.QNetwork(OBS, ACT, HIDDEN)
     torch.manual_seed(0)
-    two = ipg_her.QNetwork(OBS, ACT, HIDDEN, twin=True)
+    two = module.QNetwork(OBS, ACT, HIDDEN, twin=True)
     assert set(one.state_dict()) == {"net.0.weight", "net.0.bias", "net.2.weight", "net.2.bias",
                                      "net.4.weight", "net.4.bias", "low", "high"}  # fmt: skip
     assert torch.equal(flat(one), flat(two.net))
