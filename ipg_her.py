@@ -35,13 +35,14 @@ from common.run import Run, RunArgs
 cli.register_goal_tasks()
 torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
 BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
-HARD_FETCH = dict(hidden=256, target_std=1.0, normalization="paper", action_l2=1.0)  # results.md
+HARD_FETCH = dict(hidden=256, target_std=1.0, normalization="paper", action_l2=1.0,
+                  twin_critic=True)  # each one measured on FetchPush: results.md  # fmt: skip
 TASK_DEFAULTS = {f"Fetch{t}-v4": HARD_FETCH for t in ("Push", "PickAndPlace", "Slide")}  # flags win
 
 
 @dataclass
 class Args(RunArgs):
-    """IPG with HER (docs/ipg_her.md); Push, PickAndPlace, Slide: 4 defaults of their own."""
+    """IPG with HER (docs/ipg_her.md); Push, PickAndPlace, Slide: 5 defaults of their own."""
 
     env_id: str = "FetchReach-v4"
     """the id of the gymnasium environment"""
@@ -279,8 +280,7 @@ def ipg_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, adv=None, s_off=N
 
 
 def learning_signal(b: dict, args: Args):
-    """The update's weights: the learning signal, normalised, its raw std sigma, and the critic's
-    term's weights: b (nu; 1 with the control variate) and its scale (``normalization``)."""
+    """The update's weights: the signal, normalised; its raw std; the critic term's b and scale."""
     adv = b["advantages"] - b["cv"] if "cv" in b else b["advantages"]  # A_hat (- A_bar)
     off_scale, signal_std = 1.0, adv.std()  # on the raw scale
     if args.norm_adv:

@@ -25,7 +25,8 @@ import torch
 FORMAT_VERSION = 2
 SCRIPT = os.path.basename(sys.argv[0])  # the script running, e.g. ipg_her.py
 RESUME_FILE = "resume.pt"
-RESUMABLE_ARGS = ("resume", "resume_freq", "total_timesteps", "eval_workers")  # may change
+# may differ on --resume: how long, how often saved, evaluation workers, the run's label
+RESUMABLE_ARGS = ("resume", "resume_freq", "total_timesteps", "eval_workers", "exp_name")
 
 
 class CheckpointError(ValueError):

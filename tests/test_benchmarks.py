@@ -109,15 +109,17 @@ def test_a_dry_run_piped_into_head_ends_quietly():
 def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation_grid():
     """Issue 29's grid: Push 5 seeds x 300k, PickAndPlace 3 x 500k, Slide 3 x 1M, evaluated every
     10,000 steps on 50 episodes, resumable; nothing else of the defaults is changed but nu in
-    the mixing runs (0.5 and 0.8 on Push, 3 seeds x 200k) and the twin critic on Push's 5."""
+    the mixing runs (0.5 and 0.8 on Push, 3 seeds x 200k), and one critic on Push and
+    PickAndPlace and in the mixing runs (``_1critic``: the defaults before the twin critic)."""
     runs = run.suite_runs("fetch")
     budgets = {}
     for r in runs:
         assert r.script == "ipg_her.py"
-        variant = "twin" if "--twin-critic" in r.flags else "1.0"  # the twin critic's runs
-        pairs = [f for f in r.flags if f != "--twin-critic"]
+        critics = "1" if "--no-twin-critic" in r.flags else "2"
+        assert (critics == "1") == ("_1critic" in r.name)
+        pairs = [f for f in r.flags if f != "--no-twin-critic"]
         flags = dict(zip(pairs[::2], pairs[1::2], strict=True))
-        nu = flags.pop("--nu", variant)  # the mixing runs: nu alone differs
+        nu = flags.pop("--nu", "1.0")  # the mixing runs: nu alone differs
         assert set(flags) == {
             "--total-timesteps",
             "--eval-freq",
@@ -125,13 +127,13 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
             "--resume-freq",
         }
         assert (flags["--eval-freq"], flags["--eval-episodes"]) == ("10000", "50")
-        budgets.setdefault((r.env_id, flags["--total-timesteps"], nu), []).append(r.seed)
-    assert budgets == {("FetchPush-v4", "300000", "1.0"): [4, 5, 6, 7, 8],
-                       ("FetchPickAndPlace-v4", "500000", "1.0"): [1, 2, 3],
-                       ("FetchSlide-v4", "1000000", "1.0"): [1, 2, 3],
-                       ("FetchPush-v4", "200000", "0.5"): [4, 5, 6],
-                       ("FetchPush-v4", "200000", "0.8"): [4, 5, 6],
-                       ("FetchPush-v4", "300000", "twin"): [4, 5, 6, 7, 8]}  # fmt: skip
+        budgets.setdefault((r.env_id, flags["--total-timesteps"], nu, critics), []).append(r.seed)
+    for critics in ("1", "2"):
+        assert budgets.pop(("FetchPush-v4", "300000", "1.0", critics)) == [4, 5, 6, 7, 8]
+        assert budgets.pop(("FetchPickAndPlace-v4", "500000", "1.0", critics)) == [1, 2, 3]
+        for nu in ("0.5", "0.8"):
+            assert budgets.pop(("FetchPush-v4", "200000", nu, critics)) == [4, 5, 6]
+    assert budgets == {("FetchSlide-v4", "1000000", "1.0", "2"): [1, 2, 3]}
 
 
 def test_the_profile_gives_each_sample_to_its_phase():

@@ -198,5 +198,6 @@ def test_resume_accepts_flags_added_since_at_their_defaults_and_refuses_a_jumpin
         checkpoint.load_resume_state(str(tmp_path), ipg_her.Args(q_bar="sample"))
     checkpoint.save_resume_state(str(tmp_path), ipg_her.Args(anneal_lr=True))
     checkpoint.load_resume_state(str(tmp_path), ipg_her.Args(anneal_lr=True, resume_freq=9))
+    checkpoint.load_resume_state(str(tmp_path), ipg_her.Args(anneal_lr=True, exp_name="renamed"))
     with pytest.raises(checkpoint.CheckpointError, match="--anneal-lr"):
         checkpoint.load_resume_state(str(tmp_path), ipg_her.Args(anneal_lr=True, total_timesteps=9))
