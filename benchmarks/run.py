@@ -75,14 +75,14 @@ HOPPER_STEPS, FETCH_STEPS = 1_000_000, 30_000
 
 def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_000) -> list[Run]:
     """The named grids. ``paper``: Figure 3 (Hopper: PPO-KL vs Q-Prop), Figures 4-5 (FetchReach:
-    PPO-KL, Q-Prop, IPG without HER, IPG+HER); ``ablations``: Q-Prop's eta and normalisation,
-    IPG's nu, control variate and HER settings; ``eta``: Q-Prop's eta modes against PPO-KL on
-    Hopper at 300k steps; ``mixing``: IPG+HER on FetchReach at nu 0 to 1, with and without the
-    control variate, with a small and a large on-policy batch, and IPG and Q-Prop variants on
+    PPO-KL, Q-Prop, IPG without HER, IPG+HER); ``ablations``: Q-Prop's eta and normalisation, IPG's
+    nu, control variate and HER settings; ``eta``: Q-Prop's eta modes (and its twin critic) against
+    PPO-KL on Hopper at 300k steps; ``mixing``: IPG+HER on FetchReach at nu 0 to 1, with and without
+    the control variate, with a small and a large on-policy batch, and IPG and Q-Prop variants on
     Hopper at 300k steps (``--only FetchReach`` or ``--only Hopper`` runs one task); ``push``:
     IPG+HER on FetchPush-v4 with its earlier controls; ``fetch``: ``ipg_her.py`` with no flag but
-    the task's, Push 5 fresh seeds x 300k (and nu 0.5, 0.8 on 3 of them x 200k), PickAndPlace
-    3 x 500k, Slide 3 x 1M, and Push and PickAndPlace with one critic (``_1critic``); ``quick``: the
+    the task's, Push 5 fresh seeds x 300k (and nu 0.5, 0.8 on 3 of them x 200k), PickAndPlace 3 x
+    500k, Slide 3 x 1M, and Push and PickAndPlace with one critic (``_1critic``); ``quick``: the
     paper's shape on tiny budgets."""
     fetch = lambda name, script, *flags: (name, script, "FetchReach-v4", flags)  # noqa: E731
     hopper = lambda name, script, *flags: (name, script, "Hopper-v5", flags)  # noqa: E731
@@ -129,6 +129,8 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
             hopper(f"qprop_{eta}_300k", "qprop_ppo.py", "--eta-mode", eta, *budget)
             for eta in ("batch-conservative", "conservative")
         ]
+        # issue 29: the default eta with TD3's twin critic, the stronger critic Q-Prop lacked
+        grid.append(hopper("qprop_twin_300k", "qprop_ppo.py", "--twin-critic", *budget))
     elif suite == "mixing":  # does an interpolated gradient (0 < nu < 1) beat both ends?
         seeds = seeds or (1, 2, 3, 4, 5)
         grid = []
