@@ -59,8 +59,8 @@ def parse_args(args_class: type[A], argv: list[str] | None = None, prog: str | N
         for name, value in own.items():
             setattr(args, name, value)
         if own:
-            print(f"{args.env_id}'s own defaults: "
-                  f"{', '.join(f'{flag(k)} {v}' for k, v in own.items())}", flush=True)  # fmt: skip
+            spelled = [flag(k) if v is True else f"{flag(k)} {v}" for k, v in own.items()]
+            print(f"{args.env_id}'s own defaults: {', '.join(spelled)}", flush=True)  # as typed
         return args
     except SystemExit as e:
         if e.code:
