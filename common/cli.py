@@ -53,7 +53,7 @@ def parse_args(args_class: type[A], argv: list[str] | None = None, prog: str | N
     try:
         with contextlib.redirect_stderr(captured):
             args = tyro.cli(args_class, args=argv, prog=prog)
-        given = {a.split("=")[0].replace("--no-", "--", 1) for a in argv}  # --no-x gives x
+        given = {re.sub(r"^--no-", "--", a.split("=")[0]) for a in argv}  # --no-x gives x
         own = {k: v for k, v in (task_defaults or {}).get(args.env_id, {}).items()
                if flag(k) not in given}  # fmt: skip
         for name, value in own.items():

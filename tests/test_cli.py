@@ -180,5 +180,5 @@ def test_a_tasks_own_defaults_apply_where_no_flag_was_given(capsys):
     assert capsys.readouterr().out.endswith(line)  # spelled as one would type them
     assert vars(parse("--env-id", "FetchReach-v4")) == vars(ipg_her.Args())
     assert capsys.readouterr().out == ""
-    assert parse("--env-id", "FetchPush-v4").twin_critic  # a boolean default of the task's...
-    assert not parse("--env-id", "FetchPush-v4", "--no-twin-critic").twin_critic  # ...refused
+    assert parse("--env-id", "FetchPush-v4").twin_critic  # a boolean default of the task's
+    assert not parse("--env-id", "FetchPush-v4", "--no-twin-critic").twin_critic  # the flag wins
