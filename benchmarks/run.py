@@ -28,8 +28,8 @@ ROOT = Path(__file__).resolve().parents[1]
 class Args:
     """Run a suite of script x task x seed, one process each; a later call resumes it."""
 
-    suite: Literal["paper", "ablations", "eta", "mixing", "push", "fetch", "quick"]
-    """which grid: quick (seconds), paper (hours), eta, ablations, mixing, push, fetch (days)"""
+    suite: Literal["paper", "ablations", "eta", "mixing", "push", "fetch", "hopper", "quick"]
+    """which grid: quick (seconds), paper (hours), eta, ablations, mixing, hopper, push, fetch"""
     seeds: tuple[int, ...] = ()
     """override the suite's seeds"""
     only: str = ""
@@ -79,7 +79,8 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     nu, control variate and HER settings; ``eta``: Q-Prop's eta modes (and its twin critic) against
     PPO-KL on Hopper at 300k steps; ``mixing``: IPG+HER on FetchReach at nu 0 to 1, with and without
     the control variate, with a small and a large on-policy batch, and IPG and Q-Prop variants on
-    Hopper at 300k steps (``--only FetchReach`` or ``--only Hopper`` runs one task); ``push``:
+    Hopper at 300k steps (``--only FetchReach`` or ``--only Hopper`` runs one task); ``hopper``:
+    IPG at nu 1 and 0.5 in TD3's update regime against PPO-KL, 300k steps; ``push``:
     IPG+HER on FetchPush-v4 with its earlier controls; ``fetch``: ``ipg_her.py`` with no flag but
     the task's, Push 5 fresh seeds x 300k (and nu 0.5, 0.8 on 3 of them x 200k), PickAndPlace 3 x
     500k, Slide 3 x 1M, and Push and PickAndPlace with one critic (``_1critic``); ``quick``: the
@@ -181,6 +182,19 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         more_critic = ("--critic-steps", "2048", "--learning-starts", "10000")
         grid.append(hopper("qprop_batch-conservative_critic2048_300k", "qprop_ppo.py",
                            *more_critic, *budget))  # fmt: skip
+    elif suite == "hopper":  # issue 29: the off-policy end in TD3's update regime, fresh seeds
+        seeds = seeds or (4, 5, 6)  # the regime was screened on seed 1 (results.md)
+        budget = ("--total-timesteps", "300000")
+        # an update every 256 steps, one critic step per environment step, 128 policy steps
+        td3 = (*budget, "--num-envs", "1", "--num-steps", "256", "--critic-steps", "256",
+               "--update-epochs", "8", "--num-minibatches", "16", "--learning-rate", "3e-4",
+               "--gamma", "0.99", "--tau", "0.005", "--hidden", "256", "--twin-critic",
+               "--target-std", "0.3", "--q-bar", "sample", "--learning-starts", "10000",
+               "--eval-freq", "25600", "--eval-episodes", "10")  # fmt: skip
+        td3 += ("--resume-freq", "51200")  # runs in parts
+        grid = [hopper("ppo_kl_300k", "ppo_kl.py", *budget)]
+        grid += [hopper(f"ipg_td3_nu{nu}_300k", "ipg_her.py", "--nu", str(nu), *td3)
+                 for nu in (1.0, 0.5)]  # fmt: skip
     elif suite == "push":  # measured with FetchReach's defaults; ipg_her.py now has Push's own
         seeds = seeds or (1, 2, 3)
         budget = ("--total-timesteps", str(push_steps), "--eval-freq", "25000")
