@@ -222,10 +222,13 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
                 for critic, flags in (("", ()), ("_1critic", one))
                 if critic == "" or env_id != "FetchSlide-v4"
                 for seed in seeds or task_seeds]  # fmt: skip
-        # mixing asked again with Push's defaults: nu 0.5 and 0.8 against nu = 1 above, 200k
-        return grid + [Run(f"ipg_her{critic}_nu{nu}_200k", "ipg_her.py", "FetchPush-v4", seed,
+        # mixing asked again with Push's defaults: nu 0.5 and 0.8 against nu = 1 above, 200k; Push's
+        # --normalization paper weighs the terms nu sigma_A : (1 - nu), so eq. 10's nu: "_eq10"
+        eq10 = ("_eq10", ("--normalization", "unbiased"))
+        return grid + [Run(f"ipg_her{kind}_nu{nu}_200k", "ipg_her.py", "FetchPush-v4", seed,
                            ("--total-timesteps", "200000", "--nu", str(nu), *every, *flags))
-                       for critic, flags in (("", ()), ("_1critic", one)) for nu in (0.5, 0.8)
+                       for kind, flags in (("", ()), ("_1critic", one), eq10)
+                       for nu in (0.8, 0.5)
                        for seed in seeds or (4, 5, 6)]  # fmt: skip
     else:  # quick
         seeds = seeds or (1,)

@@ -110,7 +110,8 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
     """Issue 29's grid: Push 5 seeds x 300k, PickAndPlace 3 x 500k, Slide 3 x 1M, evaluated every
     10,000 steps on 50 episodes, resumable; nothing else of the defaults is changed but nu in
     the mixing runs (0.5 and 0.8 on Push, 3 seeds x 200k), and one critic on Push and
-    PickAndPlace and in the mixing runs (``_1critic``: the defaults before the twin critic)."""
+    PickAndPlace and in the mixing runs (``_1critic``: the defaults before the twin critic), and
+    eq. 10's nu (``_eq10``: ``--normalization unbiased``, as Push's default weighs nu sigma_A)."""
     runs = run.suite_runs("fetch")
     budgets = {}
     for r in runs:
@@ -120,6 +121,9 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
         pairs = [f for f in r.flags if f != "--no-twin-critic"]
         flags = dict(zip(pairs[::2], pairs[1::2], strict=True))
         nu = flags.pop("--nu", "1.0")  # the mixing runs: nu alone differs
+        if flags.pop("--normalization", None) == "unbiased":
+            assert "_eq10_" in r.name and nu != "1.0"
+            critics = "eq10"
         assert set(flags) == {
             "--total-timesteps",
             "--eval-freq",
@@ -133,6 +137,8 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
         assert budgets.pop(("FetchPickAndPlace-v4", "500000", "1.0", critics)) == [1, 2, 3]
         for nu in ("0.5", "0.8"):
             assert budgets.pop(("FetchPush-v4", "200000", nu, critics)) == [4, 5, 6]
+    for nu in ("0.5", "0.8"):
+        assert budgets.pop(("FetchPush-v4", "200000", nu, "eq10")) == [4, 5, 6]
     assert budgets == {("FetchSlide-v4", "1000000", "1.0", "2"): [1, 2, 3]}
 
 
