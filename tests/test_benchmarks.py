@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import scalars
 
-from benchmarks import profile_phases, report, run, update_speed
+from benchmarks import fetch_lifts, profile_phases, report, run, update_speed
 
 
 def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path, capsys):
@@ -202,3 +202,20 @@ def test_the_profile_of_a_tiny_run_names_its_phases(tmp_path):
     phases = {line["phase"]: line for line in lines}
     assert {"stepping", "policy update", "all samples"} <= set(phases)
     assert abs(sum(line["share"] for line in lines[:-1]) - 1) < 0.01
+
+
+def test_fetch_lifts_counts_a_held_lift_not_a_knock_in_time_order():
+    """A lift counts when the object stays 2 cm up for 10 steps (a knock for 9 does not), and the
+    replay buffer's episodes are read in time order (episode-major, the envs within)."""
+    start, up = 0.425, 0.425 + 0.021
+    lift = np.full(50, start)
+    lift[20:30] = up
+    knock = lift.copy()
+    knock[29] = start
+    assert fetch_lifts.held(np.array([lift, knock])).tolist() == [True, False]
+    goals = np.full((100, 2, 3), start)  # two episodes for each of two envs
+    goals[:50, 1, 2] = lift  # the second env's first episode: the second in time
+    assert fetch_lifts.replay_lifts({"achieved_goal": goals}, parts=2) == [0.5, 0.0]
+    measured = fetch_lifts.policy_by_goal(lambda obs: np.zeros(4), "FetchPickAndPlace-v4", range(4))
+    assert sum(r["episodes"] for r in measured.values()) == 4
+    assert all(r["held"] == 0 for r in measured.values() if r["episodes"])  # standing still
