@@ -13,7 +13,6 @@ relabels what the critic and the off-policy term see; the likelihood-ratio term 
 """
 
 import copy
-import functools
 import sys
 from dataclasses import dataclass
 from typing import Literal
@@ -27,6 +26,7 @@ from torch.distributions import Normal, kl_divergence
 
 from common import cli, diagnostics, her
 from common.gae import compute_gae
+from common.grasped_start import GraspedStart
 from common.her import HerReplayBuffer, ReplayBuffer, goal_task_reward, sample_replay
 from common.normalizer import InputNormalizer, RewardScaler
 from common.rollout import collect_rollout, make_vector_env
@@ -37,12 +37,13 @@ torch.distributions.Distribution.set_default_validate_args(False)  # its checks 
 BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
 HARD_FETCH = dict(hidden=256, target_std=1.0, normalization="paper", action_l2=1.0,
                   twin_critic=True)  # each one measured on FetchPush: results.md  # fmt: skip
-TASK_DEFAULTS = {f"Fetch{t}-v4": HARD_FETCH for t in ("Push", "PickAndPlace", "Slide")}  # flags win
+TASK_DEFAULTS = {f"Fetch{t}-v4": HARD_FETCH for t in ("Push", "Slide")}  # flags win
+TASK_DEFAULTS["FetchPickAndPlace-v4"] = HARD_FETCH | dict(grasped_start=0.5)  # results.md
 
 
 @dataclass
 class Args(RunArgs):
-    """IPG with HER (docs/ipg_her.md); Push, PickAndPlace, Slide: 5 defaults of their own."""
+    """IPG with HER (docs/ipg_her.md); Push, PickAndPlace, Slide: defaults of their own."""
 
     env_id: str = "FetchReach-v4"
     """the id of the gymnasium environment"""
@@ -82,6 +83,12 @@ class Args(RunArgs):
     """normalise observations (and goals) by running mean and std (saved with the model)"""
     norm_reward: bool = False
     """divide rewards by the running std of the discounted return (not Fetch's 0 / -1)"""
+    eval_freq: int = 2500
+    """evaluate the deterministic (mean) policy every this many env steps (0: only at the end)"""
+    eval_episodes: int = 20
+    """episodes per evaluation"""
+    diagnostics_every: int = 10
+    """log the diagnostics ipg/* every this many updates (0: never; they leave training as is)"""
 
     # IPG arguments
     nu: float = 1.0
@@ -112,6 +119,8 @@ class Args(RunArgs):
     """environment steps before the critic, and what uses it, starts"""
     target_std: float | None = None
     """the sigma rule: hold H(pi) at the entropy of N(0, target_std^2) per action (None: off)"""
+    grasped_start: float = 0.0
+    """share of training episodes started with the object in the gripper (the HER paper's 0.5)"""
     action_l2: float = 0.0
     """weight of the penalty mean(mu(s)^2) beside the off-policy term (OpenAI's HER: 1)"""
     twin_critic: bool = False
@@ -127,13 +136,6 @@ class Args(RunArgs):
     her_goal_selection_strategy: Literal["future", "final", "episode"] = "future"
     """where relabelled goals come from: later in the episode, its end, or anywhere in it"""
 
-    eval_freq: int = 2500
-    """evaluate the deterministic (mean) policy every this many env steps (0: only at the end)"""
-    eval_episodes: int = 20
-    """episodes per evaluation"""
-    diagnostics_every: int = 10
-    """log the diagnostics ipg/* every this many updates (0: never; they leave training as is)"""
-
 
 def check_args(args: Args, argv: list[str]) -> None:
     """Bad input fails here, before anything runs (the shared checks: ``common/cli.py``)."""
@@ -145,9 +147,10 @@ def check_args(args: Args, argv: list[str]) -> None:
 
 
 # ENV SETUP
-def make_env(env_id: str):
+def make_env(env_id: str, grasped_start: float = 0.0):
     def thunk():
         env = gym.make(env_id)  # a goal task keeps its Dict: HER needs the goals apart
+        env = GraspedStart(env, grasped_start) if grasped_start else env  # HER's sec. 4.1
         return gym.wrappers.RecordEpisodeStatistics(env)
 
     return thunk
@@ -217,9 +220,8 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
     with torch.no_grad():
         values = agent.get_value(ro["obs"])
         next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
-        next_values = torch.where(
-            ro["episode_ends"].bool(), agent.get_value(ro["final_obs"]), next_values
-        )
+        ended = ro["episode_ends"].bool()
+        next_values = torch.where(ended, agent.get_value(ro["final_obs"]), next_values)
         advantages = compute_gae(
             ro["rewards"], values, next_values, ro["terminations"], ro["episode_ends"],
             gamma=gamma, gae_lambda=gae_lambda,
@@ -256,9 +258,7 @@ def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer,
 # ALGO LOGIC: the control variate (eq. 9)
 def control_variate(qf: QNetwork, agent: Agent, obs: torch.Tensor, actions: torch.Tensor):
     """A_bar(s, a) = grad_a Q_w(s, a)|_{a = mu(s)} . (a - mu(s))   (eq. 9), no gradient to theta."""
-    with torch.no_grad():
-        mu = agent.actor_mean(obs)
-    mu.requires_grad_(True)
+    mu = agent.actor_mean(obs).detach().requires_grad_(True)  # a leaf: grad_a, not theta's
     (grad_q,) = torch.autograd.grad(qf(obs, mu).sum(), mu)
     return (grad_q * (actions - mu)).sum(-1).detach()
 
@@ -361,7 +361,7 @@ if __name__ == "__main__":
     run = Run(args)  # TRY NOT TO MODIFY: run folder, TensorBoard, seeding (common/run.py)
 
     # ENV SETUP
-    envs = make_vector_env(make_env(args.env_id), args.num_envs)  # common/rollout.py
+    envs = make_vector_env(make_env(args.env_id, args.grasped_start), args.num_envs)
     space = envs.single_observation_space
     goal_dim = space["desired_goal"].shape[0] if isinstance(space, gym.spaces.Dict) else 0
     obs_dim = space["observation"].shape[0] if goal_dim else space.shape[0]
@@ -399,9 +399,8 @@ if __name__ == "__main__":
                 optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
             # ALGO LOGIC: rollout
-            ro, raw_obs, episodes = collect_rollout(
-                envs, agent, norm, raw_obs, args.num_steps, rb, update_norm=args.norm_obs
-            )
+            ro, raw_obs, episodes = collect_rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
+                                                    update_norm=args.norm_obs)  # fmt: skip
             global_step = run.record_episodes(episodes)
 
             # ALGO LOGIC: one reward scale for GAE and the critic
@@ -440,8 +439,8 @@ if __name__ == "__main__":
                 run.log({f"ipg/{key}": value for key, value in measured.items()})
 
             # ALGO LOGIC: the IPG update (eq. 10 on eq. 5)
-            replay = functools.partial(sample_replay, rb, norm, 1.0, args.off_policy_batch_size,
-                                       args.update_epochs * args.num_minibatches)  # fmt: skip
+            replay = lambda: sample_replay(rb, norm, 1.0, args.off_policy_batch_size,
+                                           args.update_epochs * args.num_minibatches)  # fmt: skip
             beta, stats = ipg_update(agent, optimizer, b, beta, args, qf if learning else None,
                                      replay, alpha)  # fmt: skip
             stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"], "ipg/alpha": alpha}

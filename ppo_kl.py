@@ -135,9 +135,8 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
     with torch.no_grad():
         values = agent.get_value(ro["obs"])
         next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
-        next_values = torch.where(
-            ro["episode_ends"].bool(), agent.get_value(ro["final_obs"]), next_values
-        )
+        ended = ro["episode_ends"].bool()
+        next_values = torch.where(ended, agent.get_value(ro["final_obs"]), next_values)
         advantages = compute_gae(
             ro["rewards"], values, next_values, ro["terminations"], ro["episode_ends"],
             gamma=gamma, gae_lambda=gae_lambda,
@@ -229,9 +228,8 @@ if __name__ == "__main__":
                 optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
             # ALGO LOGIC: rollout
-            ro, raw_obs, episodes = collect_rollout(
-                envs, agent, norm, raw_obs, args.num_steps, update_norm=args.norm_obs
-            )
+            ro, raw_obs, episodes = collect_rollout(envs, agent, norm, raw_obs, args.num_steps,
+                                                    update_norm=args.norm_obs)  # fmt: skip
             global_step = run.record_episodes(episodes)
 
             # ALGO LOGIC: advantages (eq. 3-4) on scaled rewards

@@ -188,9 +188,8 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
     with torch.no_grad():
         values = agent.get_value(ro["obs"])
         next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
-        next_values = torch.where(
-            ro["episode_ends"].bool(), agent.get_value(ro["final_obs"]), next_values
-        )
+        ended = ro["episode_ends"].bool()
+        next_values = torch.where(ended, agent.get_value(ro["final_obs"]), next_values)
         advantages = compute_gae(
             ro["rewards"], values, next_values, ro["terminations"], ro["episode_ends"],
             gamma=gamma, gae_lambda=gae_lambda,
@@ -225,9 +224,7 @@ def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer,
 # ALGO LOGIC: the control variate (eq. 9) and its weight eta
 def control_variate(qf: QNetwork, agent: Agent, obs: torch.Tensor, actions: torch.Tensor):
     """A_bar(s, a) = grad_a Q_w(s, a)|_{a = mu(s)} . (a - mu(s))   (eq. 9), no gradient to theta."""
-    with torch.no_grad():
-        mu = agent.actor_mean(obs)
-    mu.requires_grad_(True)
+    mu = agent.actor_mean(obs).detach().requires_grad_(True)  # a leaf: grad_a, not theta's
     (grad_q,) = torch.autograd.grad(qf(obs, mu).sum(), mu)
     return (grad_q * (actions - mu)).sum(-1).detach()
 
@@ -359,9 +356,8 @@ if __name__ == "__main__":
                 optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
             # ALGO LOGIC: rollout
-            ro, raw_obs, episodes = collect_rollout(
-                envs, agent, norm, raw_obs, args.num_steps, rb, update_norm=args.norm_obs
-            )
+            ro, raw_obs, episodes = collect_rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
+                                                    update_norm=args.norm_obs)  # fmt: skip
             global_step = run.record_episodes(episodes)
 
             # ALGO LOGIC: one reward scale for GAE and the critic

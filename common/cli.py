@@ -16,6 +16,7 @@ from typing import NoReturn, TypeVar
 import gymnasium as gym
 import tyro
 
+from common import grasped_start
 from common.her import hindsight_refusal
 
 A = TypeVar("A")
@@ -130,8 +131,8 @@ def refuse_ignored(argv: list[str], ignored: dict[str, str]) -> None:
 def check_her(args, argv: list[str], goal_task: bool) -> None:
     """IPG's flags that would be ignored (HER's without goals or with --no-her, the replay batch
     size with on-policy states, the action penalty and the twin critic at nu = 0) are refused,
-    and so are a negative penalty, a non-positive target sigma or replay batch, and HER on a task
-    it cannot serve."""
+    and so are a negative penalty, a non-positive target sigma or replay batch, HER on a task it
+    cannot serve, and grasped starts outside [0, 1] or where nothing can be grasped."""
     check_positive(args, "off_policy_batch_size")
     her_flags = ("--her-n-sampled-goal", "--her-goal-selection-strategy")
     ignored = dict.fromkeys(her_flags, "--no-her") if not args.her else {}  # flag: why ignored
@@ -145,6 +146,10 @@ def check_her(args, argv: list[str], goal_task: bool) -> None:
     if args.action_l2 < 0 or args.target_std is not None and args.target_std <= 0:
         fail("--action-l2 must be non-negative and --target-std positive")
     if goal_task and args.her and (why := hindsight_refusal(args.env_id)):
+        fail(why)
+    if not 0.0 <= args.grasped_start <= 1.0:
+        fail(f"--grasped-start is a share of the episodes, in [0, 1]; got {args.grasped_start}")
+    if args.grasped_start and (why := grasped_start.refusal(args.env_id)):
         fail(why)
 
 

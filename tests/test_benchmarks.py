@@ -109,9 +109,10 @@ def test_a_dry_run_piped_into_head_ends_quietly():
 def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation_grid():
     """Issue 29's grid: Push 5 seeds x 300k, PickAndPlace 3 x 500k, Slide 3 x 1M, evaluated every
     10,000 steps on 50 episodes, resumable; nothing else of the defaults is changed but nu in
-    the mixing runs (0.5 and 0.8 on Push, 3 seeds x 200k), and one critic on Push and
-    PickAndPlace and in the mixing runs (``_1critic``: the defaults before the twin critic), and
-    eq. 10's nu (``_eq10``: ``--normalization unbiased``, as Push's default weighs nu sigma_A)."""
+    the mixing runs (0.5 and 0.8 on Push, 3 seeds x 200k), one critic on Push and in the mixing
+    runs (``_1critic``: the defaults before the twin critic), eq. 10's nu (``_eq10``:
+    ``--normalization unbiased``, as Push's default weighs nu sigma_A), and PickAndPlace without
+    its grasped starts on the seeds they were tuned on (``_nograsp``, with and without twin)."""
     runs = run.suite_runs("fetch")
     budgets = {}
     for r in runs:
@@ -121,6 +122,9 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
         pairs = [f for f in r.flags if f != "--no-twin-critic"]
         flags = dict(zip(pairs[::2], pairs[1::2], strict=True))
         nu = flags.pop("--nu", "1.0")  # the mixing runs: nu alone differs
+        if flags.pop("--grasped-start", None) == "0":
+            assert "_nograsp" in r.name and r.env_id == "FetchPickAndPlace-v4"
+            critics += "_nograsp"
         if flags.pop("--normalization", None) == "unbiased":
             assert "_eq10_" in r.name and nu != "1.0"
             critics = "eq10"
@@ -134,12 +138,14 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
         budgets.setdefault((r.env_id, flags["--total-timesteps"], nu, critics), []).append(r.seed)
     for critics in ("1", "2"):
         assert budgets.pop(("FetchPush-v4", "300000", "1.0", critics)) == [4, 5, 6, 7, 8]
-        assert budgets.pop(("FetchPickAndPlace-v4", "500000", "1.0", critics)) == [1, 2, 3]
+        assert budgets.pop(("FetchPickAndPlace-v4", "500000", "1.0", f"{critics}_nograsp")) == [
+            1, 2, 3]  # fmt: skip
         for nu in ("0.5", "0.8"):
             assert budgets.pop(("FetchPush-v4", "200000", nu, critics)) == [4, 5, 6]
     for nu in ("0.5", "0.8"):
         assert budgets.pop(("FetchPush-v4", "200000", nu, "eq10")) == [4, 5, 6]
-    assert budgets == {("FetchSlide-v4", "1000000", "1.0", "2"): [1, 2, 3]}
+    assert budgets == {("FetchSlide-v4", "1000000", "1.0", "2"): [1, 2, 3],
+                       ("FetchPickAndPlace-v4", "500000", "1.0", "2"): [4, 5, 6]}  # fmt: skip
 
 
 def test_the_hopper_suite_runs_both_ends_on_fresh_seeds_and_nu_1_to_1m_on_a_seed_of_its_own():
