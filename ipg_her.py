@@ -38,7 +38,8 @@ BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch canno
 HARD_FETCH = dict(hidden=256, target_std=1.0, normalization="paper", action_l2=1.0,
                   twin_critic=True)  # each one measured on FetchPush: results.md  # fmt: skip
 TASK_DEFAULTS = {f"Fetch{t}-v4": HARD_FETCH for t in ("Push", "Slide")}  # flags win
-TASK_DEFAULTS["FetchPickAndPlace-v4"] = HARD_FETCH | dict(grasped_start=0.5)  # results.md
+TASK_DEFAULTS["FetchPickAndPlace-v4"] = HARD_FETCH | dict(  # the gripper's own sigma: results.md
+    grasped_start=0.5, target_std=(1.0, 1.0, 1.0, 0.3))  # fmt: skip
 
 
 @dataclass
@@ -117,8 +118,8 @@ class Args(RunArgs):
     """soft target update rate of eq. 6, after every critic step (ipg_her.py: 0.05, OpenAI's HER)"""
     learning_starts: int = 100
     """environment steps before the critic, and what uses it, starts"""
-    target_std: float | None = None
-    """the sigma rule: hold H(pi) at the entropy of N(0, target_std^2) per action (None: off)"""
+    target_std: float | tuple[float, ...] | None = None
+    """the sigma rule: hold H(pi) at H(N(0, target_std^2)) per action, or one each (None: off)"""
     grasped_start: float = 0.0
     """share of training episodes started with the object in the gripper (the HER paper's 0.5)"""
     action_l2: float = 0.0
@@ -141,9 +142,7 @@ def check_args(args: Args, argv: list[str]) -> None:
     """Bad input fails here, before anything runs (the shared checks: ``common/cli.py``)."""
     goal_task = cli.check_common(args)
     cli.check_critic(args)
-    if not 0.0 <= args.nu <= 1.0 or args.her_n_sampled_goal < 0:
-        cli.fail(f"--nu must be in [0, 1] (got {args.nu}) and --her-n-sampled-goal non-negative")
-    cli.check_her(args, argv, goal_task)  # HER's flags, and tasks HER cannot serve
+    cli.check_her(args, argv, goal_task)  # nu, HER's flags, and tasks HER cannot serve
 
 
 # ENV SETUP
@@ -227,10 +226,9 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
             gamma=gamma, gae_lambda=gae_lambda,
         )  # fmt: skip
         pi_old = agent.dist(ro["obs"])
-        act_dim = ro["actions"].shape[-1]
         return {"obs": ro["obs"].flatten(0, 1), "actions": ro["actions"].flatten(0, 1),
                 "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),
-                "mean": pi_old.mean.reshape(-1, act_dim), "std": pi_old.stddev.reshape(-1, act_dim),
+                "mean": pi_old.mean.flatten(0, 1), "std": pi_old.stddev.flatten(0, 1),
                 "advantages": advantages.flatten(),
                 "returns": (advantages + values).flatten()}  # fmt: skip
 
@@ -292,7 +290,7 @@ def learning_signal(b: dict, args: Args):
 
 # ALGO LOGIC: the IPG update (eq. 10) on the PPO-KL surrogate (eq. 5)
 def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args,
-               qf: QNetwork | None = None, replay=None, alpha: float = 0.0):  # fmt: skip
+               qf: QNetwork | None = None, replay=None, alpha=0.0):  # fmt: skip
     """``update_epochs`` passes of Adam on eq. 10 inside eq. 5, then the beta rule; s ~ beta: the
     minibatch's states or ``replay()``'s. nu = 0 without control variate: ``ppo_kl_update``."""
     batch_size = b["obs"].shape[0]
@@ -318,7 +316,8 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
             pg_loss = beta * kl + (1.0 - args.nu) * on_term + off_weight * off_scale * off_term
             if args.action_l2 and s_off is not None:  # OpenAI's HER: keeps mu(s) off the bounds
                 pg_loss = pg_loss + args.action_l2 * agent.actor_mean(s_off).pow(2).mean()
-            pg_loss = pg_loss - alpha * pi.entropy().sum(-1).mean()  # the sigma rule's bonus
+            h = pi.entropy().mean(0) if np.ndim(alpha) else pi.entropy().sum(-1).mean()
+            pg_loss = pg_loss - (h.new_tensor(alpha) * h).sum()  # the sigma rule's bonus
             v_loss = 0.5 * ((agent.get_value(mb["obs"]) - mb["returns"]) ** 2).mean()
             optimizer.zero_grad()
             (pg_loss + args.vf_coef * v_loss).backward()
@@ -338,7 +337,7 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
              "losses/approx_kl": d, "losses/beta": beta, "losses/epochs": epoch + 1,
              "charts/policy_entropy": entropy, "ipg/signal_std": signal_std.item(),
              "ipg/on_policy_term": on_term.item(), "ipg/nu": args.nu,
-             "ipg/off_policy_term": off_term.item()}  # fmt: skip
+             "ipg/off_policy_term": off_term.item(), "ipg/alpha": np.mean(alpha)}  # fmt: skip
     if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
         beta /= 2
     elif d > args.kl_target * 1.5:
@@ -346,10 +345,12 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
     return min(max(beta, BETA_MIN), BETA_MAX), stats
 
 
-def sigma_rule(alpha: float, entropy: float, act_dim: int, target_std: float) -> float:
-    """SAC's temperature rule (Haarnoja et al. 2018, eq. 18), two-sided: one step of 0.01 on alpha
-    towards H(pi) = act_dim * H(N(0, target_std^2)); alpha < 0 shrinks sigma (nothing else does)."""
-    h_target = act_dim * (0.5 * np.log(2 * np.pi * np.e) + np.log(target_std))
+def sigma_rule(alpha, entropy: float, log_std: np.ndarray, target_std):
+    """SAC's temperature rule (Haarnoja et al. 2018, eq. 18), two-sided (alpha < 0 shrinks sigma):
+    alpha += 0.01 (act_dim H(N(0, target_std^2)) - H(pi)), or per dimension, a target_std each."""
+    if np.ndim(target_std):  # H(N(0, t_i^2)) - H(pi_i) = log t_i - log sigma_i
+        return alpha + 0.01 * (np.log(target_std) - log_std)
+    h_target = len(log_std) * (0.5 * np.log(2 * np.pi * np.e) + np.log(target_std))
     return alpha + 0.01 * (h_target - entropy)
 
 
@@ -380,7 +381,8 @@ if __name__ == "__main__":
     q_range = None  # the returns the reward allows, for clipping the critic's targets
     if goal_dim:  # hindsight relabelling (Figure 2) needs the task's reward function
         compute_reward = goal_task_reward(args.env_id, args.her)
-        q_range = her.sparse_return_range(compute_reward, goal_dim, args.gamma)
+        if args.clip_q_target:
+            q_range = her.sparse_return_range(compute_reward, goal_dim, args.gamma)
         rb = HerReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, goal_dim,
                              compute_reward, args.her_n_sampled_goal if args.her else 0,
                              args.her_goal_selection_strategy, run.streams.replay_seed)  # fmt: skip
@@ -413,8 +415,7 @@ if __name__ == "__main__":
             # variate and the critic's term in the update see the new data
             learning = global_step >= args.learning_starts and rb.num_sampleable() > 0
             if learning and args.critic_steps > 0:
-                clip = args.clip_q_target and q_range is not None  # to the returns allowed
-                target_range = (q_range[0] * reward_scale, 0.0) if clip else None
+                target_range = (q_range[0] * reward_scale, 0.0) if q_range else None  # clipped
                 for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size,
                                           args.critic_steps):  # fmt: skip
                     q_loss, q_mean = critic_step(qf, qf_target, q_optimizer, agent, data,
@@ -428,10 +429,9 @@ if __name__ == "__main__":
                 run.log({"ipg/cv_mean": b["cv"].mean().item()})
             diagnose = args.diagnostics_every and (iteration - 1) % args.diagnostics_every == 0
             if learning and diagnose:  # DIAGNOSTICS: the mixture, before the update (ipg/*)
-                off_states = b["obs"]
-                if args.off_policy_states == "replay":
-                    off_states = sample_replay(rb, norm, 1.0, args.off_policy_batch_size, 1,
-                                               run.diagnostics_rng)[0]["obs"]  # fmt: skip
+                off_states = b["obs"] if args.off_policy_states == "batch" else sample_replay(
+                    rb, norm, 1.0, args.off_policy_batch_size, 1, run.diagnostics_rng
+                )[0]["obs"]  # fmt: skip
                 cv = b["cv"] if args.use_cv else control_variate(qf, agent, b["obs"], b["actions"])
                 measured = diagnostics.interpolation_report(
                     agent, qf, b, cv, args, off_states, ipg_loss, learning_signal,
@@ -443,7 +443,8 @@ if __name__ == "__main__":
                                            args.update_epochs * args.num_minibatches)  # fmt: skip
             beta, stats = ipg_update(agent, optimizer, b, beta, args, qf if learning else None,
                                      replay, alpha)  # fmt: skip
-            stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"], "ipg/alpha": alpha}
+            stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}
             if args.target_std is not None:  # the sigma rule: SAC's eq. 18, two-sided (docs)
-                alpha = sigma_rule(alpha, stats["charts/policy_entropy"], act_dim, args.target_std)
+                log_std = agent.actor_logstd.detach().numpy()[0]
+                alpha = sigma_rule(alpha, stats["charts/policy_entropy"], log_std, args.target_std)
             run.end_iteration(stats, beta=beta, alpha=alpha)  # TRY NOT TO MODIFY: log, save

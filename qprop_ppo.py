@@ -195,10 +195,9 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
             gamma=gamma, gae_lambda=gae_lambda,
         )  # fmt: skip
         pi_old = agent.dist(ro["obs"])
-        act_dim = ro["actions"].shape[-1]
         return {"obs": ro["obs"].flatten(0, 1), "actions": ro["actions"].flatten(0, 1),
                 "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),
-                "mean": pi_old.mean.reshape(-1, act_dim), "std": pi_old.stddev.reshape(-1, act_dim),
+                "mean": pi_old.mean.flatten(0, 1), "std": pi_old.stddev.flatten(0, 1),
                 "advantages": advantages.flatten(),
                 "returns": (advantages + values).flatten()}  # fmt: skip
 

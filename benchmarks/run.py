@@ -83,9 +83,9 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     IPG at nu 1 and 0.5 in TD3's update regime against PPO-KL, 300k steps, and nu 1 to 1M on one
     seed; ``push``: IPG+HER on FetchPush-v4 with its earlier controls; ``fetch``: ``ipg_her.py``
     with no flag but the task's, Push 5 fresh seeds x 300k (and nu 0.5, 0.8 on 3 of them x 200k),
-    PickAndPlace 3 x 500k (and 3 without its grasped starts, ``_nograsp``), Slide 3 x 1M, and Push
-    and PickAndPlace with one critic (``_1critic``); ``quick``: the paper's shape on tiny
-    budgets."""
+    PickAndPlace 3 x 500k (and 3 with one sigma rule for all dimensions, ``_grasped``, and 3
+    without grasped starts either, ``_nograsp``), Slide 3 x 1M, and Push and PickAndPlace with
+    one critic (``_1critic``); ``quick``: the paper's shape on tiny budgets."""
     fetch = lambda name, script, *flags: (name, script, "FetchReach-v4", flags)  # noqa: E731
     hopper = lambda name, script, *flags: (name, script, "Hopper-v5", flags)  # noqa: E731
     fetch_eval = ("--total-timesteps", str(FETCH_STEPS), "--eval-freq", "2500")
@@ -214,7 +214,7 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     elif suite == "fetch":  # evaluated every 10,000 steps on 50 episodes, resumable
         every = ("--eval-freq", "10000", "--eval-episodes", "50", "--resume-freq", "50000")
         tasks = {"FetchPush-v4": (300_000, (4, 5, 6, 7, 8)),  # its settings were tuned on 1-3
-                 "FetchPickAndPlace-v4": (500_000, (4, 5, 6)),  # grasped starts: tuned on 1-3
+                 "FetchPickAndPlace-v4": (500_000, (4, 5, 6)),  # its settings tuned on 1-3
                  "FetchSlide-v4": (1_000_000, (1, 2, 3))}  # fmt: skip
         one = ("--no-twin-critic",)  # the defaults before the twin critic (its measured gain)
         grid = [Run(f"ipg_her{critic}_{steps // 1000}k", "ipg_her.py", env_id, seed,
@@ -223,11 +223,15 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
                 for critic, flags in (("", ()), ("_1critic", one))
                 if critic == "" or env_id == "FetchPush-v4"
                 for seed in seeds or task_seeds]  # fmt: skip
-        # PickAndPlace before grasped starts were its default, with and without the twin critic
-        grid += [Run(f"ipg_her_nograsp{critic}_500k", "ipg_her.py", "FetchPickAndPlace-v4", seed,
-                     ("--total-timesteps", "500000", *every, "--grasped-start", "0", *flags))
-                 for critic, flags in (("", ()), ("_1critic", one))
-                 for seed in seeds or (1, 2, 3)]  # fmt: skip
+        # PickAndPlace's earlier defaults, one sigma rule for all dimensions: with grasped starts
+        # (fresh seeds), and before them (tuning seeds) with and without the twin critic
+        summed = ("--total-timesteps", "500000", *every, "--target-std", "1.0")
+        nograsp = ("--grasped-start", "0")
+        grid += [Run(f"ipg_her_{name}_500k", "ipg_her.py", "FetchPickAndPlace-v4", seed,
+                     (*summed, *flags))
+                 for name, flags in (("grasped", ()), ("nograsp", nograsp),
+                                     ("nograsp_1critic", (*nograsp, *one)))
+                 for seed in seeds or ((4, 5, 6) if name == "grasped" else (1, 2, 3))]  # fmt: skip
         # mixing asked again with Push's defaults: nu 0.5 and 0.8 against nu = 1 above, 200k; Push's
         # --normalization paper weighs the terms nu sigma_A : (1 - nu), so eq. 10's nu: "_eq10"
         eq10 = ("_eq10", ("--normalization", "unbiased"))

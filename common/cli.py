@@ -14,6 +14,7 @@ import sys
 from typing import NoReturn, TypeVar
 
 import gymnasium as gym
+import numpy as np
 import tyro
 
 from common import grasped_start
@@ -60,7 +61,8 @@ def parse_args(args_class: type[A], argv: list[str] | None = None, prog: str | N
         for name, value in own.items():
             setattr(args, name, value)
         if own:
-            spelled = [flag(k) if v is True else f"{flag(k)} {v}" for k, v in own.items()]
+            typed = {k: " ".join(map(str, np.atleast_1d(v))) for k, v in own.items()}  # tuples too
+            spelled = [flag(k) if v is True else f"{flag(k)} {typed[k]}" for k, v in own.items()]
             print(f"{args.env_id}'s own defaults: {', '.join(spelled)}", flush=True)  # as typed
         return args
     except SystemExit as e:
@@ -131,8 +133,11 @@ def refuse_ignored(argv: list[str], ignored: dict[str, str]) -> None:
 def check_her(args, argv: list[str], goal_task: bool) -> None:
     """IPG's flags that would be ignored (HER's without goals or with --no-her, the replay batch
     size with on-policy states, the action penalty and the twin critic at nu = 0) are refused,
-    and so are a negative penalty, a non-positive target sigma or replay batch, HER on a task it
-    cannot serve, and grasped starts outside [0, 1] or where nothing can be grasped."""
+    and so are nu outside [0, 1], a negative penalty, a target sigma not positive or not one per
+    action dimension, a non-positive replay batch, HER on a task it cannot serve, and grasped
+    starts outside [0, 1] or where nothing can be grasped."""
+    if not 0.0 <= args.nu <= 1.0 or args.her_n_sampled_goal < 0:
+        fail(f"--nu must be in [0, 1] (got {args.nu}) and --her-n-sampled-goal non-negative")
     check_positive(args, "off_policy_batch_size")
     her_flags = ("--her-n-sampled-goal", "--her-goal-selection-strategy")
     ignored = dict.fromkeys(her_flags, "--no-her") if not args.her else {}  # flag: why ignored
@@ -143,8 +148,12 @@ def check_her(args, argv: list[str], goal_task: bool) -> None:
     if args.nu == 0 and not args.use_cv:
         ignored["--action-l2"] = ignored["--twin-critic"] = "no off-policy term at nu = 0"
     refuse_ignored(argv, ignored)
-    if args.action_l2 < 0 or args.target_std is not None and args.target_std <= 0:
+    stds = () if args.target_std is None else tuple(np.atleast_1d(args.target_std))
+    if args.action_l2 < 0 or min(stds, default=1.0) <= 0:
         fail("--action-l2 must be non-negative and --target-std positive")
+    if len(stds) > 1 and len(stds) != (dims := gym.make(args.env_id).action_space.shape[0]):
+        fail(f"--target-std takes one sigma or one per action dimension ({dims} on "
+             f"{args.env_id}), not {len(stds)}")  # fmt: skip
     if goal_task and args.her and (why := hindsight_refusal(args.env_id)):
         fail(why)
     if not 0.0 <= args.grasped_start <= 1.0:

@@ -111,8 +111,10 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
     10,000 steps on 50 episodes, resumable; nothing else of the defaults is changed but nu in
     the mixing runs (0.5 and 0.8 on Push, 3 seeds x 200k), one critic on Push and in the mixing
     runs (``_1critic``: the defaults before the twin critic), eq. 10's nu (``_eq10``:
-    ``--normalization unbiased``, as Push's default weighs nu sigma_A), and PickAndPlace without
-    its grasped starts on the seeds they were tuned on (``_nograsp``, with and without twin)."""
+    ``--normalization unbiased``, as Push's default weighs nu sigma_A), and PickAndPlace with its
+    earlier single sigma rule (``--target-std 1.0``): with grasped starts on the fresh seeds
+    (``_grasped``), without them on the seeds they were tuned on (``_nograsp``, with and without
+    twin)."""
     runs = run.suite_runs("fetch")
     budgets = {}
     for r in runs:
@@ -122,6 +124,10 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
         pairs = [f for f in r.flags if f != "--no-twin-critic"]
         flags = dict(zip(pairs[::2], pairs[1::2], strict=True))
         nu = flags.pop("--nu", "1.0")  # the mixing runs: nu alone differs
+        if flags.pop("--target-std", None) == "1.0":  # PickAndPlace's earlier sigma rule
+            assert r.env_id == "FetchPickAndPlace-v4" and ("_grasped" in r.name) != (
+                "--grasped-start" in flags)  # fmt: skip
+            critics += "_grasped" if "_grasped" in r.name else ""
         if flags.pop("--grasped-start", None) == "0":
             assert "_nograsp" in r.name and r.env_id == "FetchPickAndPlace-v4"
             critics += "_nograsp"
@@ -145,6 +151,7 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
     for nu in ("0.5", "0.8"):
         assert budgets.pop(("FetchPush-v4", "200000", nu, "eq10")) == [4, 5, 6]
     assert budgets == {("FetchSlide-v4", "1000000", "1.0", "2"): [1, 2, 3],
+                       ("FetchPickAndPlace-v4", "500000", "1.0", "2_grasped"): [4, 5, 6],
                        ("FetchPickAndPlace-v4", "500000", "1.0", "2"): [4, 5, 6]}  # fmt: skip
 
 

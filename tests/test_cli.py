@@ -76,6 +76,8 @@ def test_common_checks(capsys, script, argv, needle):
         ("qprop_ppo", ["--eta-mode", "none", "--twin-critic"], "--twin-critic would be ignored"),
         ("ipg_her", ["--action-l2", "-1"], "--action-l2 must be non-negative"),
         ("ipg_her", ["--target-std", "0"], "--target-std positive"),
+        ("ipg_her", ["--target-std", "1", "-1", "1", "1"], "--target-std positive"),
+        ("ipg_her", ["--target-std", "1", "0.3"], "one per action dimension (4 on FetchReach-v4)"),
         ("qprop_ppo", ["--critic-hidden", "0"], "--critic-hidden must be positive"),
     ],
 )
@@ -182,3 +184,5 @@ def test_a_tasks_own_defaults_apply_where_no_flag_was_given(capsys):
     assert capsys.readouterr().out == ""
     assert parse("--env-id", "FetchPush-v4").twin_critic  # a boolean default of the task's
     assert not parse("--env-id", "FetchPush-v4", "--no-twin-critic").twin_critic  # the flag wins
+    assert parse("--env-id", "FetchPickAndPlace-v4").target_std == (1.0, 1.0, 1.0, 0.3)
+    assert "--target-std 1.0 1.0 1.0 0.3," in capsys.readouterr().out  # a tuple as typed

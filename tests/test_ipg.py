@@ -405,10 +405,16 @@ def test_the_control_variate_waits_for_the_critic(tmp_path):
 
 
 def test_sigma_rule_is_one_step_of_dual_ascent_on_the_target_entropy():
-    """alpha moves by 0.01 (H_target - H), H_target = act_dim * (log(2 pi e) / 2 + log sigma*)."""
+    """alpha moves by 0.01 (H_target - H), H_target = act_dim * (log(2 pi e) / 2 + log sigma*);
+    with a sigma* per dimension, each alpha_i by 0.01 (H(N(0, sigma*_i^2)) - H(N(0, sigma_i^2)))."""
     h_target = 4 * (0.5 * np.log(2 * np.pi * np.e) + np.log(0.5))
-    assert ipg_her.sigma_rule(0.3, h_target - 2.0, 4, 0.5) == pytest.approx(0.3 + 0.02)
-    assert ipg_her.sigma_rule(0.3, h_target + 5.0, 4, 0.5) == pytest.approx(0.3 - 0.05)
+    log_std = np.zeros(4)  # the summed rule reads only its length
+    assert ipg_her.sigma_rule(0.3, h_target - 2.0, log_std, 0.5) == pytest.approx(0.3 + 0.02)
+    assert ipg_her.sigma_rule(0.3, h_target + 5.0, log_std, 0.5) == pytest.approx(0.3 - 0.05)
+    h = lambda std: 0.5 * np.log(2 * np.pi * np.e * np.square(std))  # noqa: E731  H(N(0, std^2))
+    sigma, target, alpha = np.array([0.5, 2.0, 1.0]), (1.0, 1.0, 0.3), np.array([0.1, 0.2, 0.3])
+    expected = alpha + 0.01 * (h(np.array(target)) - h(sigma))
+    np.testing.assert_allclose(ipg_her.sigma_rule(alpha, 99.0, np.log(sigma), target), expected)
 
 
 @pytest.mark.parametrize("start_std", [0.2, 5.0])
@@ -423,12 +429,41 @@ def test_sigma_rule_grows_sigma_below_the_target_and_shrinks_it_above(start_std)
     for _ in range(60):
         b = random_batch(32, 3, 2, agent)
         _, stats = ipg_her.ipg_update(agent, optimizer, b, 0.0, args, alpha=alpha)
-        alpha = ipg_her.sigma_rule(alpha, stats["charts/policy_entropy"], 2, args.target_std)
+        log_std = agent.actor_logstd.detach().numpy()[0]
+        alpha = ipg_her.sigma_rule(alpha, stats["charts/policy_entropy"], log_std, args.target_std)
         alphas.append(alpha)
     sigma = agent.actor_logstd.exp().mean().item()
     assert (alphas[0] > 0) == (start_std < 1.0)  # the first step's sign: towards the target
     assert (sigma > start_std) == (start_std < 1.0)
     assert 0.5 < sigma < 2.0, sigma
+
+
+def test_sigma_rule_per_dimension_moves_each_sigma_to_its_own_target():
+    """One target per action dimension (PickAndPlace's gripper): from sigma 1 the rule alone grows
+    the dimension aimed at 2 and shrinks the one aimed at 0.3, each steadily until it reaches its
+    target, and leaves the one aimed at 1; the summed rule moves all dimensions alike."""
+    targets = (1.0, 2.0, 0.3)
+    traces = []
+    for target_std in (targets, float(np.exp(np.log(targets).mean()))):  # the same total H
+        torch.manual_seed(0)
+        agent = ipg_her.Agent(3, 3, hidden=16)
+        optimizer = torch.optim.Adam(agent.parameters(), lr=0.05)
+        args = ipg_her.Args(nu=1.0, target_std=target_std, num_minibatches=1, update_epochs=5)
+        alpha, trace = 0.0, []
+        for _ in range(40):
+            _, stats = ipg_her.ipg_update(agent, optimizer, random_batch(32, 3, 3, agent), 0.0,
+                                          args, alpha=alpha)  # fmt: skip
+            log_std = agent.actor_logstd.detach().numpy()[0]
+            alpha = ipg_her.sigma_rule(alpha, stats["charts/policy_entropy"], log_std, target_std)
+            trace.append(np.exp(log_std))
+        traces.append(np.array(trace))
+    per_dim, summed = traces
+    assert np.all(per_dim[:, 0] == 1.0)  # at its target from the start: alpha_0 stays 0
+    for dim, reached in ((1, per_dim[:, 1] >= 2.0), (2, per_dim[:, 2] <= 0.3)):
+        assert reached.any(), per_dim[:, dim]
+        steps = np.diff(per_dim[: reached.argmax() + 1, dim])
+        assert np.all(steps > 0) if dim == 1 else np.all(steps < 0), per_dim[:, dim]
+    assert np.all(summed == summed[:, :1])  # one alpha: no dimension apart
 
 
 def test_action_penalty_adds_the_gradient_of_l2_mean_mu_squared():
