@@ -124,6 +124,8 @@ class Args(RunArgs):
     """share of training episodes started with the object in the gripper (the HER paper's 0.5)"""
     action_l2: float = 0.0
     """weight of the penalty mean(mu(s)^2) beside the off-policy term (OpenAI's HER: 1)"""
+    bounds_loss: float = 0.0
+    """weight of the penalty mean((mu(s) beyond the action bounds)^2) (rl_games' bounds loss)"""
     twin_critic: bool = False
     """two critics, the target the smaller of their Q_w' (TD3's clipped double Q)"""
     clip_q_target: bool = True
@@ -192,8 +194,7 @@ class Agent(nn.Module):
 
 
 class QNetwork(nn.Module):
-    """Critic Q_w(s, a) of the executed action (``a`` clipped to the bounds: never one it was not
-    trained on); ``twin``: a second network, for TD3's clipped double-Q target (Fujimoto 2018)."""
+    """Critic Q_w(s, a) of the executed (clipped) action; ``twin``: TD3's second (Fujimoto 2018)."""
 
     def __init__(self, obs_dim, act_dim, hidden=128, low=-np.inf, high=np.inf, twin=False):
         super().__init__()
@@ -314,8 +315,10 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
             on_term, off_term = ipg_loss(agent, qf, pi, mb, mb["adv"] if args.nu < 1 else None,
                                          s_off, args.q_bar)  # fmt: skip
             pg_loss = beta * kl + (1.0 - args.nu) * on_term + off_weight * off_scale * off_term
-            if args.action_l2 and s_off is not None:  # OpenAI's HER: keeps mu(s) off the bounds
-                pg_loss = pg_loss + args.action_l2 * agent.actor_mean(s_off).pow(2).mean()
+            if s_off is not None and (args.action_l2 or args.bounds_loss):  # mu(s) in the bounds
+                mu = agent.actor_mean(s_off)  # OpenAI's HER: l2 mu(s)^2; rl_games: beyond bounds
+                beyond = mu - mu.clamp(qf.low, qf.high)  # zero inside: there Q_w's gradient lives
+                pg_loss += args.action_l2 * (mu**2).mean() + args.bounds_loss * (beyond**2).mean()
             h = pi.entropy().mean(0) if np.ndim(alpha) else pi.entropy().sum(-1).mean()
             pg_loss = pg_loss - (h.new_tensor(alpha) * h).sum()  # the sigma rule's bonus
             v_loss = 0.5 * ((agent.get_value(mb["obs"]) - mb["returns"]) ** 2).mean()
@@ -346,8 +349,7 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
 
 
 def sigma_rule(alpha, entropy: float, log_std: np.ndarray, target_std):
-    """SAC's temperature rule (Haarnoja et al. 2018, eq. 18), two-sided (alpha < 0 shrinks sigma):
-    alpha += 0.01 (act_dim H(N(0, target_std^2)) - H(pi)), or per dimension, a target_std each."""
+    """SAC's alpha rule (Haarnoja 2018, eq. 18), two-sided: alpha += 0.01 (H_target - H(pi))."""
     if np.ndim(target_std):  # H(N(0, t_i^2)) - H(pi_i) = log t_i - log sigma_i
         return alpha + 0.01 * (np.log(target_std) - log_std)
     h_target = len(log_std) * (0.5 * np.log(2 * np.pi * np.e) + np.log(target_std))
@@ -391,8 +393,7 @@ if __name__ == "__main__":
         envs, model=dict(agent=agent, normalizer=norm, qf=qf, qf_target=qf_target),
         training=dict(optimizer=optimizer, reward_scaler=reward_scaler,
                       q_optimizer=q_optimizer, rb=rb),
-        beta=args.beta_init, alpha=0.0,
-    )  # fmt: skip
+        beta=args.beta_init, alpha=0.0)  # fmt: skip
 
     with run:  # TRY NOT TO MODIFY: Ctrl-C, kill or a NaN end the run cleanly
         for iteration in run.iterations(num_iterations):
@@ -433,9 +434,8 @@ if __name__ == "__main__":
                     rb, norm, 1.0, args.off_policy_batch_size, 1, run.diagnostics_rng
                 )[0]["obs"]  # fmt: skip
                 cv = b["cv"] if args.use_cv else control_variate(qf, agent, b["obs"], b["actions"])
-                measured = diagnostics.interpolation_report(
-                    agent, qf, b, cv, args, off_states, ipg_loss, learning_signal,
-                    run.diagnostics_generator)  # fmt: skip
+                measured = diagnostics.interpolation_report(agent, qf, b, cv, args, off_states,
+                    ipg_loss, learning_signal, run.diagnostics_generator)  # fmt: skip
                 run.log({f"ipg/{key}": value for key, value in measured.items()})
 
             # ALGO LOGIC: the IPG update (eq. 10 on eq. 5)

@@ -217,8 +217,7 @@ if __name__ == "__main__":
     raw_obs, beta = run.start(
         envs, model=dict(agent=agent, normalizer=norm),
         training=dict(optimizer=optimizer, reward_scaler=reward_scaler),
-        beta=args.beta_init,
-    )  # fmt: skip
+        beta=args.beta_init)  # fmt: skip
 
     with run:  # TRY NOT TO MODIFY: Ctrl-C, kill or a NaN end the run cleanly
         for iteration in run.iterations(num_iterations):

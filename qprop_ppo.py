@@ -161,8 +161,7 @@ class Agent(nn.Module):
 
 
 class QNetwork(nn.Module):
-    """Critic Q_w(s, a) of the executed action (``a`` clipped to the bounds: never one it was not
-    trained on); ``twin``: a second network, for TD3's clipped double-Q target (Fujimoto 2018)."""
+    """Critic Q_w(s, a) of the executed (clipped) action; ``twin``: TD3's second (Fujimoto 2018)."""
 
     def __init__(self, obs_dim, act_dim, hidden=128, low=-np.inf, high=np.inf, twin=False):
         super().__init__()
@@ -345,8 +344,7 @@ if __name__ == "__main__":
         envs, model=dict(agent=agent, normalizer=norm, qf=qf, qf_target=qf_target),
         training=dict(optimizer=optimizer, reward_scaler=reward_scaler,
                       q_optimizer=q_optimizer, rb=rb),
-        beta=args.beta_init,
-    )  # fmt: skip
+        beta=args.beta_init)  # fmt: skip
 
     with run:  # TRY NOT TO MODIFY: Ctrl-C, kill or a NaN end the run cleanly
         for iteration in run.iterations(num_iterations):

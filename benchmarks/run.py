@@ -197,6 +197,9 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         grid = [hopper("ppo_kl_300k", "ppo_kl.py", *budget)]
         grid += [hopper(f"ipg_td3_nu{nu}_300k", "ipg_her.py", "--nu", str(nu), *td3)
                  for nu in (1.0, 0.5)]  # fmt: skip
+        # mu(s) beyond the bounds, where the clipping critic gives no gradient (results.md)
+        grid.append(hopper("ipg_td3_bounds_nu1.0_300k", "ipg_her.py", "--nu", "1.0", *td3,
+                           "--bounds-loss", "1.0"))  # fmt: skip
         to_1m = ("--nu", "1.0", "--total-timesteps", "1000000", *td3[len(budget) :])
         grid += [("ipg_td3_nu1.0_1M", "ipg_her.py", "Hopper-v5", to_1m, seed_1m)]
     elif suite == "push":  # measured with FetchReach's defaults; ipg_her.py now has Push's own

@@ -132,7 +132,7 @@ def refuse_ignored(argv: list[str], ignored: dict[str, str]) -> None:
 
 def check_her(args, argv: list[str], goal_task: bool) -> None:
     """IPG's flags that would be ignored (HER's without goals or with --no-her, the replay batch
-    size with on-policy states, the action penalty and the twin critic at nu = 0) are refused,
+    size with on-policy states, the action penalties and the twin critic at nu = 0) are refused,
     and so are nu outside [0, 1], a negative penalty, a target sigma not positive or not one per
     action dimension, a non-positive replay batch, HER on a task it cannot serve, and grasped
     starts outside [0, 1] or where nothing can be grasped."""
@@ -146,11 +146,12 @@ def check_her(args, argv: list[str], goal_task: bool) -> None:
     if args.off_policy_states == "batch":
         ignored["--off-policy-batch-size"] = "--off-policy-states batch"
     if args.nu == 0 and not args.use_cv:
-        ignored["--action-l2"] = ignored["--twin-critic"] = "no off-policy term at nu = 0"
+        penalties = ("--action-l2", "--bounds-loss", "--twin-critic")
+        ignored |= dict.fromkeys(penalties, "no off-policy term at nu = 0")
     refuse_ignored(argv, ignored)
     stds = () if args.target_std is None else tuple(np.atleast_1d(args.target_std))
-    if args.action_l2 < 0 or min(stds, default=1.0) <= 0:
-        fail("--action-l2 must be non-negative and --target-std positive")
+    if min(args.action_l2, args.bounds_loss) < 0 or min(stds, default=1.0) <= 0:
+        fail("--action-l2 and --bounds-loss must be non-negative and --target-std positive")
     if len(stds) > 1 and len(stds) != (dims := gym.make(args.env_id).action_space.shape[0]):
         fail(f"--target-std takes one sigma or one per action dimension ({dims} on "
              f"{args.env_id}), not {len(stds)}")  # fmt: skip

@@ -1,5 +1,6 @@
 """ipg_her.py: the nu = 0 identity with PPO-KL, the off-policy term, replay, smoke, bad input."""
 
+import copy
 import itertools
 
 import numpy as np
@@ -464,6 +465,33 @@ def test_sigma_rule_per_dimension_moves_each_sigma_to_its_own_target():
         steps = np.diff(per_dim[: reached.argmax() + 1, dim])
         assert np.all(steps > 0) if dim == 1 else np.all(steps < 0), per_dim[:, dim]
     assert np.all(summed == summed[:, :1])  # one alpha: no dimension apart
+
+
+def test_bounds_loss_adds_the_gradient_of_the_squared_excess_beyond_the_bounds():
+    """One SGD step with --bounds-loss 0.5 moves the policy by the step without it plus the
+    gradient of 0.5 * mean((mu - clamp(mu, low, high))^2): mu(s) inside the bounds feels nothing,
+    mu(s) beyond them is pulled back (rl_games' bounds loss, at the action bounds)."""
+    torch.manual_seed(0)
+    agent, states = ipg_her.Agent(5, 2, hidden=32), torch.randn(48, 5)
+    with torch.no_grad():
+        agent.actor_mean[-1].bias.copy_(torch.tensor([0.0, 1.0]))  # dim 1 at its upper bound
+    qf = ipg_her.QNetwork(5, 2, 32, low=-1.0, high=1.0)
+    mu = agent.actor_mean(states)
+    assert (mu[:, 0].abs() < 1).all() and (mu[:, 1] > 1).any() and (mu[:, 1] < 1).any()
+    b, steps = random_batch(64, 5, 2, agent), []
+    for weight in (0.0, 0.5):
+        a = copy.deepcopy(agent)
+        args = ipg_her.Args(nu=1.0, bounds_loss=weight, num_minibatches=1, update_epochs=1,
+                            vf_coef=0.0, max_grad_norm=1e9)  # fmt: skip
+        ipg_her.ipg_update(a, torch.optim.SGD(a.parameters(), lr=1.0), b, 0.0, args, qf,
+                           replay_of(states))  # fmt: skip
+        steps.append(torch.cat([p.detach().flatten() for p in a.actor_parameters()]))
+    beyond = (mu - 1.0).clamp(min=0.0)  # by hand: only dim 1 ever exceeds a bound
+    grads = torch.autograd.grad(0.5 * beyond.pow(2).mean(), agent.actor_parameters(),
+                                materialize_grads=True)  # fmt: skip
+    expected = torch.cat([g.flatten() for g in grads])
+    assert expected.abs().max() > 1e-4  # the states beyond the bound pull
+    torch.testing.assert_close(steps[0] - steps[1], expected)
 
 
 def test_action_penalty_adds_the_gradient_of_l2_mean_mu_squared():
