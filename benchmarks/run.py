@@ -79,13 +79,14 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     nu, control variate and HER settings; ``eta``: Q-Prop's eta modes (and its twin critic) against
     PPO-KL on Hopper at 300k steps; ``mixing``: IPG+HER on FetchReach at nu 0 to 1, with and without
     the control variate, with a small and a large on-policy batch, and IPG and Q-Prop variants on
-    Hopper at 300k steps (``--only FetchReach`` or ``--only Hopper`` runs one task); ``hopper``:
-    IPG at nu 1 and 0.5 in TD3's update regime against PPO-KL, 300k steps, and nu 1 to 1M on one
-    seed; ``push``: IPG+HER on FetchPush-v4 with its earlier controls; ``fetch``: ``ipg_her.py``
-    with no flag but the task's, Push 5 fresh seeds x 300k (and nu 0.5, 0.8 on 3 of them x 200k),
-    PickAndPlace 3 x 500k (and 3 with one sigma rule for all dimensions, ``_grasped``, and 3
-    without grasped starts either, ``_nograsp``), Slide 3 x 1M, and Push and PickAndPlace with
-    one critic (``_1critic``); ``quick``: the paper's shape on tiny budgets."""
+    Hopper at 300k steps (``--only FetchReach`` or ``--only Hopper`` runs one task); ``hopper``: IPG
+    at nu 1 and 0.5 in TD3's update regime against PPO-KL, 300k steps (nu 1 with TD3's noise on
+    seeds of its own), and nu 1 to 1M on one seed; ``push``: IPG+HER on FetchPush-v4 with its
+    earlier controls; ``fetch``: ``ipg_her.py`` with no flag but the task's, Push 5 fresh seeds x
+    300k (and nu 0.5, 0.8 on 3 of them x 200k), PickAndPlace 3 x 500k (and 3 with one sigma rule for
+    all dimensions, ``_grasped``, and 3 without grasped starts either, ``_nograsp``), Slide 3 x 1M,
+    and Push and PickAndPlace with one critic (``_1critic``); ``quick``: the paper's shape on tiny
+    budgets."""
     fetch = lambda name, script, *flags: (name, script, "FetchReach-v4", flags)  # noqa: E731
     hopper = lambda name, script, *flags: (name, script, "Hopper-v5", flags)  # noqa: E731
     fetch_eval = ("--total-timesteps", str(FETCH_STEPS), "--eval-freq", "2500")
@@ -200,6 +201,13 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         # mu(s) beyond the bounds, where the clipping critic gives no gradient (results.md)
         grid.append(hopper("ipg_td3_bounds_nu1.0_300k", "ipg_her.py", "--nu", "1.0", *td3,
                            "--bounds-loss", "1.0"))  # fmt: skip
+        # TD3's exploration noise (0.1) with the KL target scaled by (0.3 / 0.1)^2, so that the
+        # mean's step per update stays what it was at 0.3; screened on seed 1 after 4-6 were seen
+        narrow = [f if f != "0.3" else "0.1" for f in td3] + ["--kl-target", "0.9"]
+        fresh = seeds if seeds != (4, 5, 6) else (8, 9, 10)  # and PPO-KL on them, side by side
+        grid.append(("ipg_td3_narrow_nu1.0_300k", "ipg_her.py", "Hopper-v5",
+                     ("--nu", "1.0", *narrow, "--bounds-loss", "1.0"), fresh))  # fmt: skip
+        grid += [("ppo_kl_300k", "ppo_kl.py", "Hopper-v5", budget, fresh)] if fresh != seeds else []
         to_1m = ("--nu", "1.0", "--total-timesteps", "1000000", *td3[len(budget) :])
         grid += [("ipg_td3_nu1.0_1M", "ipg_her.py", "Hopper-v5", to_1m, seed_1m)]
     elif suite == "push":  # measured with FetchReach's defaults; ipg_her.py now has Push's own

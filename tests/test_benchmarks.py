@@ -157,21 +157,26 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
 
 def test_the_hopper_suite_runs_both_ends_on_fresh_seeds_and_nu_1_to_1m_on_a_seed_of_its_own():
     """Issue 29's Hopper grid: PPO-KL and IPG at nu 1 and 0.5 (TD3's regime) on seeds 4-6 at
-    300k, nu 1 also with the bounds loss; nu 1 to 1M on seed 7 alone, with the 300k rows' flags
-    but the budget; ``--seeds`` moves all of them."""
+    300k, nu 1 also with the bounds loss; nu 1 with TD3's noise and the bounds loss, and PPO-KL
+    beside it, on seeds 8-10; nu 1 to 1M on seed 7 alone, with the 300k rows' flags but the
+    budget; ``--seeds`` moves all of them."""
     seeds = {}
     for r in run.suite_runs("hopper"):
         seeds.setdefault(r.name, []).append(r.seed)
-    assert seeds == {"ppo_kl_300k": [4, 5, 6], "ipg_td3_nu1.0_300k": [4, 5, 6],
+    assert seeds == {"ppo_kl_300k": [4, 5, 6, 8, 9, 10], "ipg_td3_nu1.0_300k": [4, 5, 6],
                      "ipg_td3_nu0.5_300k": [4, 5, 6], "ipg_td3_bounds_nu1.0_300k": [4, 5, 6],
-                     "ipg_td3_nu1.0_1M": [7]}  # fmt: skip
+                     "ipg_td3_narrow_nu1.0_300k": [8, 9, 10], "ipg_td3_nu1.0_1M": [7]}  # fmt: skip
     flags = {r.name: list(r.flags) for r in run.suite_runs("hopper")}
     short, long = flags["ipg_td3_nu1.0_300k"], flags["ipg_td3_nu1.0_1M"]
     assert flags["ipg_td3_bounds_nu1.0_300k"] == [*short, "--bounds-loss", "1.0"]
+    narrow = [*short, "--kl-target", "0.9", "--bounds-loss", "1.0"]
+    narrow[narrow.index("--target-std") + 1] = "0.1"
+    assert flags["ipg_td3_narrow_nu1.0_300k"] == narrow
     for f in (short, long):  # the budget is the only pair that differs
         del f[f.index("--total-timesteps") : f.index("--total-timesteps") + 2]
     assert short == long and "--resume-freq" in long
-    assert {r.seed for r in run.suite_runs("hopper", seeds=(9, 10))} == {9, 10}
+    moved = run.suite_runs("hopper", seeds=(9, 10))
+    assert {r.seed for r in moved} == {9, 10} and len(moved) == len(set(moved))
     assert [r.seed for r in run.suite_runs("hopper", seeds=(9, 10)) if "1M" in r.name] == [9]
 
 
