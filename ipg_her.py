@@ -56,8 +56,6 @@ class Args(RunArgs):
     """steps per env per rollout (batch = num_envs * num_steps; ipg_her.py: 50, one episode)"""
     learning_rate: float = 1e-3
     """the learning rate of Adam (ipg_her.py: 1e-3, OpenAI's HER recipe)"""
-    anneal_lr: bool = False
-    """anneal the learning rate linearly to zero (not in ipg_her.py: its nu = 1 keeps learning)"""
     gamma: float = 0.98
     """the discount factor gamma (ipg_her.py: 0.98, OpenAI's HER recipe)"""
     gae_lambda: float = 0.95
@@ -128,6 +126,8 @@ class Args(RunArgs):
     """weight of the penalty mean((mu(s) beyond the action bounds)^2) (rl_games' bounds loss)"""
     twin_critic: bool = False
     """two critics, the target the smaller of their Q_w' (TD3's clipped double Q)"""
+    critic_target: Literal["mean", "sample"] = "mean"
+    """the critic's target at a' = mu(s') (DDPG's) or at one a' ~ pi(s') (SAC's, no entropy term)"""
     clip_q_target: bool = True
     """goal tasks with Fetch's 0/-1 reward: clip critic targets to [-1/(1-gamma), 0]"""
 
@@ -236,10 +236,12 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
 
 # ALGO LOGIC: the critic step (eq. 6-7)
 def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent,
-                data: dict, gamma: float, tau: float, target_range=None):  # fmt: skip
+                data: dict, gamma: float, tau: float, target_range=None, a_next="mu"):  # fmt: skip
     """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
-    with torch.no_grad():  # Q_w'(s', mu(s')); twin: the smaller of the two (TD3)
-        next_q = torch.stack(qf_target(data["next_obs"], agent.actor_mean(data["next_obs"]), True))
+    with torch.no_grad():  # Q_w'(s', a'), a' = mu(s') or a' ~ pi(s'); twin: the smaller (TD3)
+        pi_next = agent.dist(data["next_obs"])
+        a = pi_next.sample() if a_next == "sample" else pi_next.mean  # sample: torch's generator
+        next_q = torch.stack(qf_target(data["next_obs"], a, True))
         target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q.min(0).values
         if target_range is not None:
             target = target.clamp(*target_range)  # the returns the rewards allow (OpenAI's HER)
@@ -397,10 +399,6 @@ if __name__ == "__main__":
 
     with run:  # TRY NOT TO MODIFY: Ctrl-C, kill or a NaN end the run cleanly
         for iteration in run.iterations(num_iterations):
-            if args.anneal_lr:
-                frac = 1.0 - (iteration - 1.0) / num_iterations
-                optimizer.param_groups[0]["lr"] = frac * args.learning_rate
-
             # ALGO LOGIC: rollout
             ro, raw_obs, episodes = collect_rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
                                                     update_norm=args.norm_obs)  # fmt: skip
@@ -420,7 +418,8 @@ if __name__ == "__main__":
                 for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size,
                                           args.critic_steps):  # fmt: skip
                     q_loss, q_mean = critic_step(qf, qf_target, q_optimizer, agent, data,
-                                                 args.gamma, args.tau, target_range)  # fmt: skip
+                                                 args.gamma, args.tau, target_range,
+                                                 args.critic_target)  # fmt: skip
                 run.log({"losses/critic_loss": q_loss, "losses/q_values": q_mean})
 
             # ALGO LOGIC: advantages (eq. 3-4) and the control variate (eq. 9)

@@ -1,6 +1,7 @@
 """critic_step of qprop_ppo.py and ipg_her.py (eq. 6-7): the TD target
 r + gamma (1 - terminated) Q_w'(s', mu(s')), the gradient step on 0.5 E[(Q_w - target)^2], the
-soft target update w' <- tau w + (1 - tau) w', and IPG's clipping of the targets."""
+soft target update w' <- tau w + (1 - tau) w', and IPG's clipping of the targets and its target
+at a sampled a' ~ pi(s')."""
 
 import copy
 
@@ -38,10 +39,10 @@ def replay_batch(n=12):
     }
 
 
-def hand_target(agent, qf_target, d, gamma=GAMMA):
-    """r + gamma (1 - terminated) Q_w'(s', mu(s')), row by row."""
+def hand_target(agent, qf_target, d, gamma=GAMMA, a_next=None):
+    """r + gamma (1 - terminated) Q_w'(s', a'), row by row; a' = mu(s') unless given."""
     with torch.no_grad():
-        mu_next = agent.actor_mean(d["next_obs"])
+        mu_next = agent.actor_mean(d["next_obs"]) if a_next is None else a_next
         rows = []
         for i in range(len(d["rewards"])):
             if d["terminations"][i] == 1:
@@ -56,12 +57,14 @@ def flat(net):
     return torch.cat([p.detach().flatten() for p in net.parameters()])
 
 
-def call(module, qf, qf_target, optimizer, agent, d, gamma=GAMMA, tau=TAU, target_range=None):
-    extra = () if target_range is None else (target_range,)
+def call(module, qf, qf_target, optimizer, agent, d, gamma=GAMMA, tau=TAU, target_range=None,
+         a_next=None):  # fmt: skip
+    extra = () if target_range is None and a_next is None else (target_range,)
+    extra += () if a_next is None else (a_next,)
     return module.critic_step(qf, qf_target, optimizer, agent, d, gamma, tau, *extra)
 
 
-def check_step(module, target_of, target_range=None):
+def check_step(module, target_of, target_range=None, a_next=None):
     """One critic_step with SGD (lr 0.1): the loss and mean Q it returns, and the critic's new
     weights, are those of 0.5 E[(Q_w(s, a) - y)^2] for y = ``target_of(agent, qf_target, d)``."""
     agent, qf, qf_target = networks(module)
@@ -74,7 +77,7 @@ def check_step(module, target_of, target_range=None):
     expected = flat(qf) - LR * torch.cat([g.flatten() for g in grads])
     optimizer = torch.optim.SGD(qf.parameters(), lr=LR)
     got_loss, got_mean_q = call(
-        module, qf, qf_target, optimizer, agent, d, target_range=target_range
+        module, qf, qf_target, optimizer, agent, d, target_range=target_range, a_next=a_next
     )
     assert got_loss == pytest.approx(loss.item(), rel=1e-5)
     assert got_mean_q == pytest.approx(q.mean().item(), rel=1e-5)
@@ -127,6 +130,28 @@ def test_ipg_targets_are_clipped_to_target_range(target_range):
     inside = (raw > lo) & (raw < hi)
     assert (raw < lo).any() and (raw > hi).any() and inside.any(), "a bound never reached"
     assert not torch.allclose(y, raw)
+
+
+def test_ipg_critic_target_at_a_sampled_next_action():
+    """--critic-target sample: y = r + gamma (1 - d) Q_w'(s', a') at the a' ~ pi(s') the step
+    draws from torch's generator (drawn here from the same state); not the target at mu(s')."""
+
+    def sampled(agent, qf_target, d):
+        state = torch.get_rng_state()
+        with torch.no_grad():
+            a_next = agent.dist(d["next_obs"]).sample()
+        torch.set_rng_state(state)  # critic_step draws these same a'
+        assert (a_next - agent.actor_mean(d["next_obs"])).abs().min() > 0
+        return hand_target(agent, qf_target, d, a_next=a_next)
+
+    torch.manual_seed(3)
+    _, _, _, y = check_step(ipg_her, sampled, a_next="sample")
+    agent, _, qf_target = networks(ipg_her)
+    at_mean = hand_target(agent, qf_target, replay_batch())
+    live = replay_batch()["terminations"] == 0
+    assert (y - at_mean)[live].abs().min() > 1e-3, "a sampled a' should move every target"
+    _, _, _, y_mu = check_step(ipg_her, hand_target, a_next="mu")  # the default: a' = mu(s')
+    torch.testing.assert_close(y_mu, at_mean)
 
 
 @pytest.mark.parametrize("module", [qprop_ppo, ipg_her], ids=["qprop_ppo", "ipg_her"])

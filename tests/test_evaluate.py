@@ -11,6 +11,7 @@ import torch
 from conftest import ROOT, assert_clean_error, run_dirs, run_script, scalars
 
 import ipg_her
+import qprop_ppo
 from common import checkpoint, evaluate
 from common.normalizer import RunningMeanStd
 
@@ -188,7 +189,7 @@ def test_resume_accepts_flags_added_since_at_their_defaults_and_refuses_a_jumpin
 ):
     """A resume point written before a flag existed: the run had the flag's default, so the
     same command resumes it, and only a non-default value is refused. A longer budget is refused
-    under --anneal-lr, whose schedule it would move."""
+    under --anneal-lr (Q-Prop's, PPO-KL's), whose schedule it would move."""
     checkpoint.save_resume_state(str(tmp_path), ipg_her.Args(), global_step=100)
     state = torch.load(tmp_path / "resume.pt", weights_only=False)
     del state["args"]["q_bar"]  # as written by code before --q-bar
@@ -196,8 +197,10 @@ def test_resume_accepts_flags_added_since_at_their_defaults_and_refuses_a_jumpin
     assert checkpoint.load_resume_state(str(tmp_path), ipg_her.Args())["global_step"] == 100
     with pytest.raises(checkpoint.CheckpointError, match="--q-bar 'mean' \\(now 'sample'\\)"):
         checkpoint.load_resume_state(str(tmp_path), ipg_her.Args(q_bar="sample"))
-    checkpoint.save_resume_state(str(tmp_path), ipg_her.Args(anneal_lr=True))
-    checkpoint.load_resume_state(str(tmp_path), ipg_her.Args(anneal_lr=True, resume_freq=9))
-    checkpoint.load_resume_state(str(tmp_path), ipg_her.Args(anneal_lr=True, exp_name="renamed"))
+    checkpoint.save_resume_state(str(tmp_path), qprop_ppo.Args(anneal_lr=True))
+    checkpoint.load_resume_state(str(tmp_path), qprop_ppo.Args(anneal_lr=True, resume_freq=9))
+    checkpoint.load_resume_state(str(tmp_path), qprop_ppo.Args(anneal_lr=True, exp_name="renamed"))
     with pytest.raises(checkpoint.CheckpointError, match="--anneal-lr"):
-        checkpoint.load_resume_state(str(tmp_path), ipg_her.Args(anneal_lr=True, total_timesteps=9))
+        checkpoint.load_resume_state(
+            str(tmp_path), qprop_ppo.Args(anneal_lr=True, total_timesteps=9)
+        )
