@@ -236,11 +236,11 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
 
 # ALGO LOGIC: the critic step (eq. 6-7)
 def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent,
-                data: dict, gamma: float, tau: float, target_range=None, a_next="mu"):  # fmt: skip
+                data: dict, gamma: float, tau: float, target_range=None, sample=False):  # fmt: skip
     """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
     with torch.no_grad():  # Q_w'(s', a'), a' = mu(s') or a' ~ pi(s'); twin: the smaller (TD3)
         pi_next = agent.dist(data["next_obs"])
-        a = pi_next.sample() if a_next == "sample" else pi_next.mean  # sample: torch's generator
+        a = pi_next.sample() if sample else pi_next.mean  # sample: torch's generator
         next_q = torch.stack(qf_target(data["next_obs"], a, True))
         target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q.min(0).values
         if target_range is not None:
@@ -419,7 +419,7 @@ if __name__ == "__main__":
                                           args.critic_steps):  # fmt: skip
                     q_loss, q_mean = critic_step(qf, qf_target, q_optimizer, agent, data,
                                                  args.gamma, args.tau, target_range,
-                                                 args.critic_target)  # fmt: skip
+                                                 args.critic_target == "sample")  # fmt: skip
                 run.log({"losses/critic_loss": q_loss, "losses/q_values": q_mean})
 
             # ALGO LOGIC: advantages (eq. 3-4) and the control variate (eq. 9)

@@ -58,13 +58,13 @@ def flat(net):
 
 
 def call(module, qf, qf_target, optimizer, agent, d, gamma=GAMMA, tau=TAU, target_range=None,
-         a_next=None):  # fmt: skip
-    extra = () if target_range is None and a_next is None else (target_range,)
-    extra += () if a_next is None else (a_next,)
+         sample_next=None):  # fmt: skip
+    extra = () if target_range is None and sample_next is None else (target_range,)
+    extra += () if sample_next is None else (sample_next,)
     return module.critic_step(qf, qf_target, optimizer, agent, d, gamma, tau, *extra)
 
 
-def check_step(module, target_of, target_range=None, a_next=None):
+def check_step(module, target_of, target_range=None, sample_next=None):
     """One critic_step with SGD (lr 0.1): the loss and mean Q it returns, and the critic's new
     weights, are those of 0.5 E[(Q_w(s, a) - y)^2] for y = ``target_of(agent, qf_target, d)``."""
     agent, qf, qf_target = networks(module)
@@ -77,7 +77,14 @@ def check_step(module, target_of, target_range=None, a_next=None):
     expected = flat(qf) - LR * torch.cat([g.flatten() for g in grads])
     optimizer = torch.optim.SGD(qf.parameters(), lr=LR)
     got_loss, got_mean_q = call(
-        module, qf, qf_target, optimizer, agent, d, target_range=target_range, a_next=a_next
+        module,
+        qf,
+        qf_target,
+        optimizer,
+        agent,
+        d,
+        target_range=target_range,
+        sample_next=sample_next,
     )
     assert got_loss == pytest.approx(loss.item(), rel=1e-5)
     assert got_mean_q == pytest.approx(q.mean().item(), rel=1e-5)
@@ -145,12 +152,12 @@ def test_ipg_critic_target_at_a_sampled_next_action():
         return hand_target(agent, qf_target, d, a_next=a_next)
 
     torch.manual_seed(3)
-    _, _, _, y = check_step(ipg_her, sampled, a_next="sample")
+    _, _, _, y = check_step(ipg_her, sampled, sample_next=True)
     agent, _, qf_target = networks(ipg_her)
     at_mean = hand_target(agent, qf_target, replay_batch())
     live = replay_batch()["terminations"] == 0
     assert (y - at_mean)[live].abs().min() > 1e-3, "a sampled a' should move every target"
-    _, _, _, y_mu = check_step(ipg_her, hand_target, a_next="mu")  # the default: a' = mu(s')
+    _, _, _, y_mu = check_step(ipg_her, hand_target, sample_next=False)  # the default: a' = mu(s')
     torch.testing.assert_close(y_mu, at_mean)
 
 
