@@ -132,7 +132,7 @@ def refuse_ignored(argv: list[str], ignored: dict[str, str]) -> None:
 
 def check_her(args, argv: list[str], goal_task: bool) -> None:
     """IPG's flags that would be ignored (HER's without goals or with --no-her, the replay batch
-    size with on-policy states, the action penalties and the twin critic at nu = 0) are refused,
+    size with on-policy states, the penalties, twin critic and critic target at nu = 0) are refused,
     and so are nu outside [0, 1], a negative penalty, a target sigma not positive or not one per
     action dimension, a non-positive replay batch, HER on a task it cannot serve, and grasped
     starts outside [0, 1] or where nothing can be grasped."""
@@ -146,7 +146,7 @@ def check_her(args, argv: list[str], goal_task: bool) -> None:
     if args.off_policy_states == "batch":
         ignored["--off-policy-batch-size"] = "--off-policy-states batch"
     if args.nu == 0 and not args.use_cv:
-        penalties = ("--action-l2", "--bounds-loss", "--twin-critic")
+        penalties = ("--action-l2", "--bounds-loss", "--twin-critic", "--critic-target")
         ignored |= dict.fromkeys(penalties, "no off-policy term at nu = 0")
     refuse_ignored(argv, ignored)
     stds = () if args.target_std is None else tuple(np.atleast_1d(args.target_std))

@@ -73,6 +73,7 @@ def test_common_checks(capsys, script, argv, needle):
         ("ipg_her", ["--hidden", "0"], "--hidden must be positive"),
         ("ipg_her", ["--nu", "0", "--action-l2", "1"], "--action-l2 would be ignored"),
         ("ipg_her", ["--nu", "0", "--twin-critic"], "--twin-critic would be ignored"),
+        ("ipg_her", ["--nu", "0", "--critic-target", "sample"], "--critic-target would be ignored"),
         ("qprop_ppo", ["--eta-mode", "none", "--twin-critic"], "--twin-critic would be ignored"),
         ("ipg_her", ["--nu", "0", "--bounds-loss", "1"], "--bounds-loss would be ignored"),
         ("ipg_her", ["--action-l2", "-1"], "--action-l2 and --bounds-loss must be non-negative"),
