@@ -216,6 +216,9 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         grid.append(("ipg_td3_paper_sampled_nu1.0_300k", "ipg_her.py", "Hopper-v5",
                      ("--nu", "1.0", *narrow, "--bounds-loss", "1.0", "--normalization", "paper",
                       "--critic-target", "sample"), fresh3))  # fmt: skip
+        if fresh3 != seeds:  # the nu = 1 row again on those seeds: a second fresh trio
+            grid.append(("ipg_td3_nu1.0_300k", "ipg_her.py", "Hopper-v5", ("--nu", "1.0", *td3),
+                         fresh3))  # fmt: skip
         grid += [("ppo_kl_300k", "ppo_kl.py", "Hopper-v5", budget, fresh_seeds)
                  for fresh_seeds in (fresh, fresh2, fresh3) if fresh_seeds != seeds]  # fmt: skip
         to_1m = ("--nu", "1.0", "--total-timesteps", "1000000", *td3[len(budget) :])
