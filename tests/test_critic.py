@@ -59,9 +59,9 @@ def flat(net):
 
 def call(module, qf, qf_target, optimizer, agent, d, gamma=GAMMA, tau=TAU, target_range=None,
          sample_next=None):  # fmt: skip
-    extra = () if target_range is None and sample_next is None else (target_range,)
-    extra += () if sample_next is None else (sample_next,)
-    return module.critic_step(qf, qf_target, optimizer, agent, d, gamma, tau, *extra)
+    given = {"target_range": target_range, "sample": sample_next}  # ipg_her.py's only
+    extra = {key: value for key, value in given.items() if value is not None}
+    return module.critic_step(qf, qf_target, optimizer, agent, d, gamma, tau, **extra)
 
 
 def check_step(module, target_of, target_range=None, sample_next=None):
