@@ -187,6 +187,7 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     elif suite == "hopper":  # issue 29: the off-policy end in TD3's update regime, fresh seeds
         seed_1m = seeds[:1] or (7,)  # the 1M figure: one seed none of the others used
         fresh, fresh2, fresh3 = seeds or (8, 9, 10), seeds or (11, 12, 13), seeds or (14, 15, 16)
+        fresh4 = seeds or (17, 18, 19)
         seeds = seeds or (4, 5, 6)  # the regime was screened on seed 1 (results.md)
         budget = ("--total-timesteps", "300000")
         # an update every 256 steps, one critic step per environment step, 128 policy steps
@@ -216,11 +217,11 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         grid.append(("ipg_td3_paper_sampled_nu1.0_300k", "ipg_her.py", "Hopper-v5",
                      ("--nu", "1.0", *narrow, "--bounds-loss", "1.0", "--normalization", "paper",
                       "--critic-target", "sample"), fresh3))  # fmt: skip
-        if fresh3 != seeds:  # the nu = 1 row again on those seeds: a second fresh trio
-            grid.append(("ipg_td3_nu1.0_300k", "ipg_her.py", "Hopper-v5", ("--nu", "1.0", *td3),
-                         fresh3))  # fmt: skip
-        grid += [("ppo_kl_300k", "ppo_kl.py", "Hopper-v5", budget, fresh_seeds)
-                 for fresh_seeds in (fresh, fresh2, fresh3) if fresh_seeds != seeds]  # fmt: skip
+        # the nu = 1 row again on fresh trios of its own: a second (14-16) and a third (17-19)
+        grid += [("ipg_td3_nu1.0_300k", "ipg_her.py", "Hopper-v5", ("--nu", "1.0", *td3), trio)
+                 for trio in (fresh3, fresh4) if trio != seeds]  # fmt: skip
+        grid += [("ppo_kl_300k", "ppo_kl.py", "Hopper-v5", budget, trio)
+                 for trio in (fresh, fresh2, fresh3, fresh4) if trio != seeds]  # fmt: skip
         to_1m = ("--nu", "1.0", "--total-timesteps", "1000000", *td3[len(budget) :])
         grid += [("ipg_td3_nu1.0_1M", "ipg_her.py", "Hopper-v5", to_1m, seed_1m)]
     elif suite == "push":  # measured with FetchReach's defaults; ipg_her.py now has Push's own
