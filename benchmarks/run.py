@@ -217,9 +217,11 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         grid.append(("ipg_td3_paper_sampled_nu1.0_300k", "ipg_her.py", "Hopper-v5",
                      ("--nu", "1.0", *narrow, "--bounds-loss", "1.0", "--normalization", "paper",
                       "--critic-target", "sample"), fresh3))  # fmt: skip
-        # the nu = 1 row again on fresh trios of its own: a second (14-16) and a third (17-19)
-        grid += [("ipg_td3_nu1.0_300k", "ipg_her.py", "Hopper-v5", ("--nu", "1.0", *td3), trio)
-                 for trio in (fresh3, fresh4) if trio != seeds]  # fmt: skip
+        # the nu = 1 row again on fresh trios of its own: a second (14-16) and a third (17-19),
+        # and nu = 0.5 on the third, where both ends ran side by side (the mixing question)
+        grid += [(f"ipg_td3_nu{nu}_300k", "ipg_her.py", "Hopper-v5", ("--nu", str(nu), *td3), trio)
+                 for nu, trio in ((1.0, fresh3), (1.0, fresh4), (0.5, fresh4))
+                 if trio != seeds]  # fmt: skip
         grid += [("ppo_kl_300k", "ppo_kl.py", "Hopper-v5", budget, trio)
                  for trio in (fresh, fresh2, fresh3, fresh4) if trio != seeds]  # fmt: skip
         to_1m = ("--nu", "1.0", "--total-timesteps", "1000000", *td3[len(budget) :])

@@ -159,15 +159,15 @@ def test_the_hopper_suite_runs_both_ends_on_fresh_seeds_and_nu_1_to_1m_on_a_seed
     """Issue 29's Hopper grid: PPO-KL and IPG at nu 1 and 0.5 (TD3's regime) on seeds 4-6 at
     300k, nu 1 also with the bounds loss; nu 1 with TD3's noise and the bounds loss, and PPO-KL
     beside it, on seeds 8-10, and the same with the critic's term at scale 1 on 11-13; that with
-    the critic's target sampled, and nu 1 again, on 14-16; nu 1 again on 17-19 (PPO-KL beside
-    them); nu 1 to 1M on seed 7 alone, with the 300k rows' flags but the budget; ``--seeds``
+    the critic's target sampled, and nu 1 again, on 14-16; nu 1 and 0.5 again on 17-19 (PPO-KL
+    beside them); nu 1 to 1M on seed 7 alone, with the 300k rows' flags but the budget; ``--seeds``
     moves all of them."""
     seeds = {}
     for r in run.suite_runs("hopper"):
         seeds.setdefault(r.name, []).append(r.seed)
     assert seeds == {"ppo_kl_300k": [4, 5, 6, *range(8, 20)],
                      "ipg_td3_nu1.0_300k": [4, 5, 6, *range(14, 20)],
-                     "ipg_td3_nu0.5_300k": [4, 5, 6],
+                     "ipg_td3_nu0.5_300k": [4, 5, 6, 17, 18, 19],
                      "ipg_td3_bounds_nu1.0_300k": [4, 5, 6],
                      "ipg_td3_narrow_nu1.0_300k": [8, 9, 10],
                      "ipg_td3_paper_nu1.0_300k": [11, 12, 13],
