@@ -114,7 +114,7 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
     ``--normalization unbiased``, as Push's default weighs nu sigma_A), and PickAndPlace with its
     earlier single sigma rule (``--target-std 1.0``): with grasped starts on the fresh seeds
     (``_grasped``), without them on the seeds they were tuned on (``_nograsp``, with and without
-    twin)."""
+    twin), and Slide with Push's defaults on the seeds its own were tuned on (``_sigma1``)."""
     runs = run.suite_runs("fetch")
     budgets = {}
     for r in runs:
@@ -124,7 +124,12 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
         pairs = [f for f in r.flags if f != "--no-twin-critic"]
         flags = dict(zip(pairs[::2], pairs[1::2], strict=True))
         nu = flags.pop("--nu", "1.0")  # the mixing runs: nu alone differs
-        if flags.pop("--target-std", None) == "1.0":  # PickAndPlace's earlier sigma rule
+        std = flags.pop("--target-std", None)  # Slide's and PickAndPlace's earlier sigma rule
+        if std == "1.0" and r.env_id == "FetchSlide-v4":
+            assert "_sigma1_" in r.name  # Push's defaults: its sigma rule and action penalty
+            assert (flags.pop("--action-l2"), flags.pop("--bounds-loss")) == ("1.0", "0.0")
+            critics += "_sigma1"
+        elif std == "1.0":
             assert r.env_id == "FetchPickAndPlace-v4" and ("_grasped" in r.name) != (
                 "--grasped-start" in flags)  # fmt: skip
             critics += "_grasped" if "_grasped" in r.name else ""
@@ -150,7 +155,8 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
             assert budgets.pop(("FetchPush-v4", "200000", nu, critics)) == [4, 5, 6]
     for nu in ("0.5", "0.8"):
         assert budgets.pop(("FetchPush-v4", "200000", nu, "eq10")) == [4, 5, 6]
-    assert budgets == {("FetchSlide-v4", "1000000", "1.0", "2"): [1, 2, 3],
+    assert budgets == {("FetchSlide-v4", "1000000", "1.0", "2"): [4, 5, 6],
+                       ("FetchSlide-v4", "1000000", "1.0", "2_sigma1"): [1, 2, 3],
                        ("FetchPickAndPlace-v4", "500000", "1.0", "2_grasped"): [4, 5, 6],
                        ("FetchPickAndPlace-v4", "500000", "1.0", "2"): [4, 5, 6]}  # fmt: skip
 

@@ -189,3 +189,6 @@ def test_a_tasks_own_defaults_apply_where_no_flag_was_given(capsys):
     assert not parse("--env-id", "FetchPush-v4", "--no-twin-critic").twin_critic  # the flag wins
     assert parse("--env-id", "FetchPickAndPlace-v4").target_std == (1.0, 1.0, 1.0, 0.3)
     assert "--target-std 1.0 1.0 1.0 0.3," in capsys.readouterr().out  # a tuple as typed
+    slide = parse("--env-id", "FetchSlide-v4")  # Push's, but narrow sigma and mu kept in bounds
+    assert (slide.target_std, slide.action_l2, slide.bounds_loss) == ((0.3, 0.3, 0.3, 1.0), 0, 1)
+    assert (slide.hidden, slide.normalization, slide.twin_critic) == (256, "paper", True)
