@@ -84,7 +84,8 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     seeds of its own), and nu 1 to 1M on one seed; ``push``: IPG+HER on FetchPush-v4 with its
     earlier controls; ``fetch``: ``ipg_her.py`` with no flag but the task's, Push 5 fresh seeds x
     300k (and nu 0.5, 0.8 on 3 of them x 200k), PickAndPlace 3 x 500k (and 3 with one sigma rule for
-    all dimensions, ``_grasped``, and 3 without grasped starts either, ``_nograsp``), Slide 3 x 1M,
+    all dimensions, ``_grasped``, and 3 without grasped starts either, ``_nograsp``), Slide 3 x 1M
+    (and with Push's defaults on the seeds it was tuned on, ``_sigma1``),
     and Push and PickAndPlace with one critic (``_1critic``); ``quick``: the paper's shape on tiny
     budgets."""
     fetch = lambda name, script, *flags: (name, script, "FetchReach-v4", flags)  # noqa: E731
