@@ -228,13 +228,13 @@ class Run:
             self.last_save = step
             self.save()
         if resume_due:
-            self.last_resume = step
             checkpoint.save_resume_state(
                 self.dir, args, **self.parts, rng=checkpoint.rng_states(), scalars=self.scalars,
                 iteration=self.iteration, global_step=step, train_time=self.train_time,
                 last_eval=self.last_eval, last_save=self.last_save,
                 recent_success=self.recent_success, eval_seeds=self.eval_seeds,
             )  # fmt: skip
+            self.last_resume = step  # once written
         self.progress.update(step - self.progress.n)
         self.progress.set_postfix_str(f"{self.latest} | {self.latest_eval}", refresh=False)
 
@@ -255,7 +255,9 @@ class Run:
         Either way the model is saved (``--save-model``) and everything is closed."""
         code = 0 if error is None else None  # None: a bug, whose traceback follows the cleanup
         if isinstance(error, KeyboardInterrupt):
-            message = f"interrupted at global step {self.global_step}; logs are kept in {self.dir}"
+            message = f"interrupted at step {self.global_step:,}; logs are kept in {self.dir}"
+            if self.last_resume:  # what --resume takes back: the last resume point, not this step
+                message += f"; --resume {self.dir} goes on from step {self.last_resume:,}"
             self.print(message, file=sys.stderr)
             code = 128 + (signal.SIGTERM if isinstance(error, Terminated) else signal.SIGINT)
         elif isinstance(error, FloatingPointError):
@@ -269,7 +271,8 @@ class Run:
         self.progress.close()
         if code is None:
             return False
-        summary = f"done: {self.global_step:,} steps in {time.time() - self.start_time:.0f} s"
+        seconds = time.time() - self.start_time
+        summary = f"{'stopped' if code else 'done'}: {self.global_step:,} steps in {seconds:.0f} s"
         if len(self.eval_returns):
             summary += f"; last evaluation: return {self.eval_returns.mean():.1f}"
         if len(self.eval_success):

@@ -138,44 +138,40 @@ def flat_leaves(tree, prefix=""):
         yield prefix[:-1], tree
 
 
-def test_an_interrupted_run_keeps_its_logs_and_saves_its_model(tmp_path):
+def test_an_interrupted_run_keeps_its_logs_saves_its_model_and_names_its_resume_point(tmp_path):
+    """A run killed (SIGTERM) ends as Ctrl-C does, exit 143, logs and model kept, and says from
+    which step --resume goes on: the last resume point (here 2,048, the step the killed run was
+    resumed from), not the step it stopped at."""
     import os
     import signal
     import subprocess
-    import sys
     import time
 
-    from conftest import ROOT
+    from conftest import ROOT, run_script
 
-    cmd = [
-        sys.executable,
-        str(ROOT / "ppo_kl.py"),
-        "--log-dir",
-        str(tmp_path),
-        "--total-timesteps",
-        "1000000",
-        "--save-model",
-    ]
-    proc = subprocess.Popen(
-        cmd,
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "OMP_NUM_THREADS": "1"},
-    )
+    same = ("--save-model", "--eval-episodes", "1", "--no-anneal-lr")  # resumed with the same
+    result = run_script("ppo_kl.py", tmp_path, "--total-timesteps", "2048", "--resume-freq", "2048",
+                        *same)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    (run_dir,) = run_dirs(tmp_path)
+    cmd = [sys.executable, str(ROOT / "ppo_kl.py"), "--log-dir", str(tmp_path), "--total-timesteps",
+           "1000000", "--resume-freq", "0", *same, "--resume", str(run_dir)]  # fmt: skip
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})  # fmt: skip
     deadline = time.time() + 120
-    while time.time() < deadline and not (
-        tmp_path.exists() and run_dirs(tmp_path) and "losses/beta" in scalars(run_dirs(tmp_path)[0])
+    while (
+        proc.poll() is None
+        and time.time() < deadline
+        and scalars(run_dir)["losses/beta"][-1][0] <= 2048
     ):
         time.sleep(1)
     proc.send_signal(signal.SIGTERM)
-    _, err = proc.communicate(timeout=60)
+    out, err = proc.communicate(timeout=60)
     assert proc.returncode == 143, err  # 128 + SIGTERM, the shell convention
-    assert "interrupted at global step" in err
-    (run_dir,) = run_dirs(tmp_path)
+    assert "interrupted at step" in err and "\nstopped: " in out
+    assert f"--resume {run_dir} goes on from step 2,048" in err
     assert (run_dir / "model.pt").exists()
-    assert len(scalars(run_dir)["losses/beta"]) >= 1
+    assert scalars(run_dir)["losses/beta"][-1][0] > 2048
 
 
 @pytest.mark.parametrize("beta, kl_target, bound", [(1 / 35, 1e6, 1 / 35), (35.0, 1e-12, 35.0)])
