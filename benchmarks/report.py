@@ -225,12 +225,16 @@ def plot(
         runs = [r[tag] for r in runs.values() if r.get(tag)]
         if not runs:
             continue
-        end = min(p[-1][0] for p in runs)
-        grid = np.linspace(0, end, 200)
+        grid = np.linspace(0, max(p[-1][0] for p in runs), 200)
         curves = np.stack([curve_on_grid(p, grid, smooth) for p in runs])
         x = grid / 50 if per_episode else grid  # FetchReach: 50 steps per episode
         centre = np.nanmedian(curves, 0) if median else np.nanmean(curves, 0)
-        ax.plot(x, centre, label=f"{LABELS.get(name, name)} ({len(runs)} seeds)")
+        every_seed = grid <= min(p[-1][0] for p in runs)
+        label = f"{LABELS.get(name, name)} ({len(runs)} seeds)"
+        (line,) = ax.plot(x, np.where(every_seed, centre, np.nan), label=label)
+        if not every_seed.all():  # past the shortest seed: the seeds that ran on, dashed
+            past = grid >= grid[every_seed][-1]
+            ax.plot(x, np.where(past, centre, np.nan), color=line.get_color(), ls="--")
         if median:  # the band: the lowest and highest seed
             lo, hi = np.nanmin(curves, 0), np.nanmax(curves, 0)
         else:
@@ -712,9 +716,9 @@ evaluation reaches 0.9 success (FetchReach, PickAndPlace; 0.5 on Push, 0.7 on Sl
 over all seeds, a seed that never reached it counting as never. *SPS*: environment steps per
 second of training, evaluation excluded; *wall time*: first to last logged event (a resumed
 run: summed over its sessions, with the work an interruption threw away).
-Curves: {curves}, Hopper smoothed over 20 logged episodes, FetchReach returns
-over 10. The success table gives, for goal tasks, the median [min, max] over seeds of the last
-evaluation at or before each budget.
+Curves: {curves} (dashed past the shortest seed: the seeds that ran on), Hopper smoothed
+over 20 logged episodes, FetchReach returns over 10. The success table gives, for goal tasks,
+the median [min, max] over seeds of the last evaluation at or before each budget.
 """
     (results / "results.md").write_text(text)
     print(text)

@@ -339,3 +339,21 @@ def test_fetch_figures_draw_the_median_seed_and_the_band_from_lowest_to_highest(
     band = ax.collections[0].get_paths()[0].vertices[:, 1]
     assert band.min() == pytest.approx(0.0) and band.max() == pytest.approx(1.0)
     plt.close(fig)
+
+
+def test_curves_go_on_dashed_past_the_shortest_seed():
+    """An unfinished seed does not cut the figure: the line is solid while every seed has data
+    and goes on, dashed and joined to it, over the seeds that ran on (here seed 2 alone)."""
+    import matplotlib.pyplot as plt
+
+    runs = {1: [[0, 0.0], [10, 0.2]], 2: [[0, 0.0], [10, 0.4], [20, 0.6]]}
+    groups = {"ipg_her__FetchSlide-v4": {s: {"eval/success_rate": p} for s, p in runs.items()}}
+    fig, ax = plt.subplots()
+    report.plot(ax, groups, ["ipg_her"], "FetchSlide-v4", "eval/success_rate", None, median=True)
+    (solid, dashed) = ax.lines
+    x_solid = solid.get_xdata()[np.isfinite(solid.get_ydata())]
+    x_dashed, y_dashed = (v[np.isfinite(dashed.get_ydata())] for v in dashed.get_xydata().T)
+    assert 9.8 < x_solid.max() <= 10 and x_dashed.min() == x_solid.max()
+    assert x_dashed.max() == 20 and y_dashed[-1] == pytest.approx(0.6)
+    assert dashed.get_linestyle() == "--" and solid.get_linestyle() == "-"
+    plt.close(fig)
