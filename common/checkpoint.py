@@ -5,7 +5,7 @@ reset seeds of its last evaluation (so that ``python -m common.evaluate`` can re
 ``state_dict()`` of every part of the model (``agent``, its input ``normalizer`` and any critic),
 with ``normalizer_class`` naming the normaliser: all a policy needs to be rebuilt, without the
 script that trained it. ``resume.pt`` adds what a run needs to go on (optimisers, replay, random
-states, counters), read by ``--resume``.
+states, counters), read by ``--resume``; ``python -m common.evaluate`` reads its policy too.
 
 Loading a pickle can run any code it names (a shared ``model.pt`` could). Both files are read
 with ``torch.load(weights_only=True)``, which builds tensors and plain Python values only and
@@ -138,17 +138,23 @@ def restore(target, saved) -> None:
 
 
 def load(path: str) -> dict:
-    """The model file at ``path`` (a ``model.pt`` or the run folder holding one)."""
+    """The policy in ``path``: a ``model.pt``, a ``resume.pt`` (the policy at its resume point,
+    with the seeds of the evaluation it had run last), or a run folder holding either."""
     if os.path.isdir(path):
-        path = os.path.join(path, "model.pt")
-        if not os.path.isfile(path):
-            raise CheckpointError(f"no model.pt in {os.path.dirname(path)}: a run writes one "
-                                  "only when started with --save-model")  # fmt: skip
+        names = [os.path.join(path, name) for name in ("model.pt", RESUME_FILE)]
+        if not (found := [name for name in names if os.path.isfile(name)]):
+            raise CheckpointError(f"no model.pt or {RESUME_FILE} in {path}: a run writes "
+                                  "them only with --save-model or --resume-freq")  # fmt: skip
+        path = found[0]
     if not os.path.isfile(path):
         raise CheckpointError(f"no such file: {path}")
     content = _read(path)
     if "agent" not in content or "normalizer" not in content:
-        raise CheckpointError(f"{path} is a resume file or another file, not a model.pt")
+        raise CheckpointError(f"{path} holds no policy: it is not a model.pt or a resume.pt")
+    if "script" in content:  # a resume.pt: what a model.pt names, read from what it holds
+        goals = "obs_rms" in content["normalizer"]
+        content |= {"normalizer_class": "InputNormalizer" if goals else "RunningMeanStd",
+                    "last_eval_seeds": content["eval_seeds"]}  # fmt: skip
     return content
 
 

@@ -2,6 +2,7 @@
 
     python -m common.evaluate runs/FetchReach-v4__ipg_her__1__1795420633      # its model.pt
     python -m common.evaluate runs/.../model.pt --episodes 50 --seed 7 --capture-video
+    python -m common.evaluate runs/.../resume.pt    # a run without --save-model: its resume point
 
 From Python (a notebook), on raw environment observations (a Dict on goal tasks):
 
@@ -44,7 +45,7 @@ class Args:
     recorded as videos."""
 
     path: tyro.conf.Positional[Annotated[str, tyro.conf.arg(metavar="PATH")]]
-    """a model.pt written with --save-model, or the run folder holding it"""
+    """a model.pt (--save-model), a resume.pt (--resume-freq), or the run folder holding one"""
     episodes: int | None = None
     """episodes to run (None: as many as the run's last evaluation)"""
     seed: int | None = None
@@ -153,7 +154,7 @@ def evaluate_snapshot(snapshot: dict, env_id: str, seeds: list[int], video_dir=N
 
 
 def load_policy(path: str, env_id: str | None = None) -> Policy:
-    """The policy saved at ``path`` (a model.pt or its run folder), optionally on another task
+    """The policy saved at ``path`` (``checkpoint.load``'s), optionally on another task
     whose spaces match. Raises ``checkpoint.CheckpointError`` or ``ValueError`` on bad input."""
     content = checkpoint.load(path)
     env_id = env_id or content["args"]["env_id"]

@@ -22,7 +22,7 @@ TINY_PPO = ["--num-envs", "2", "--num-steps", "64", "--total-timesteps", "128",
 @pytest.fixture(scope="module")
 def hopper_run(tmp_path_factory):
     log_dir = tmp_path_factory.mktemp("runs")
-    result = run_script("ppo_kl.py", log_dir, *TINY_PPO, "--save-model")
+    result = run_script("ppo_kl.py", log_dir, *TINY_PPO, "--save-model", "--resume-freq", "128")
     assert result.returncode == 0, result.stderr
     (run_dir,) = run_dirs(log_dir)
     return run_dir
@@ -34,6 +34,24 @@ def test_the_command_prints_the_runs_own_last_evaluation(hopper_run, capsys):
     assert capsys.readouterr().out.startswith(f"2 episodes: return {last:.2f} ± ")
     assert evaluate.main([str(hopper_run / "model.pt"), "--episodes", "3", "--seed", "4"]) == 0
     assert capsys.readouterr().out.startswith("3 episodes: return ")
+
+
+def test_a_resume_file_or_a_folder_holding_only_one_evaluates_its_policy(
+    hopper_run, tmp_path, capsys
+):
+    """A run without --save-model: its resume.pt (here written at the end) replays the run's
+    last evaluation like the model.pt does, also as the only file of a folder; on a goal task
+    (FetchReach, its goal normaliser) too."""
+    flags = ("--total-timesteps", "200", "--eval-episodes", "2", "--resume-freq", "100")
+    assert run_script("ipg_her.py", tmp_path / "fetch", *flags).returncode == 0
+    (fetch_run,) = run_dirs(tmp_path / "fetch")
+    (tmp_path / "copy").mkdir()
+    (tmp_path / "copy" / "resume.pt").write_bytes((hopper_run / "resume.pt").read_bytes())
+    for path, run in ((hopper_run / "resume.pt", hopper_run), (tmp_path / "copy", hopper_run),
+                      (fetch_run, fetch_run)):  # fmt: skip
+        last = scalars(run)["eval/episodic_return"][-1][1]
+        assert evaluate.main([str(path)]) == 0
+        assert capsys.readouterr().out.startswith(f"2 episodes: return {last:.2f} ± ")
 
 
 def refused(capsys, *argv: str) -> str:
@@ -76,6 +94,9 @@ def test_a_model_or_resume_file_that_would_run_code_is_refused_without_running_i
 
 def test_bad_input_gets_one_clear_line(hopper_run, tmp_path, capsys):
     assert "no such file" in refused(capsys, str(tmp_path / "nothing.pt"))
+    assert "no model.pt or resume.pt" in refused(capsys, str(tmp_path))
+    torch.save({"format_version": checkpoint.FORMAT_VERSION, "args": {}}, tmp_path / "args.pt")
+    assert "holds no policy" in refused(capsys, str(tmp_path / "args.pt"))
     (tmp_path / "notes.pt").write_text("not a checkpoint")
     assert "not a checkpoint" in refused(capsys, str(tmp_path / "notes.pt"))
     torch.save({"script": "ppo_kl", "format_version": 99}, tmp_path / "future.pt")
