@@ -139,7 +139,7 @@ def restore(target, saved) -> None:
 
 def load(path: str) -> dict:
     """The policy in ``path``: a ``model.pt``, a ``resume.pt`` (the policy at its resume point,
-    with the seeds of the evaluation it had run last), or a run folder holding either."""
+    with the seeds of the evaluation it had run last), or a run folder (its model.pt if any)."""
     if os.path.isdir(path):
         names = [os.path.join(path, name) for name in ("model.pt", RESUME_FILE)]
         if not (found := [name for name in names if os.path.isfile(name)]):
