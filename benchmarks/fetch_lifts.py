@@ -65,8 +65,7 @@ if __name__ == "__main__":
     content = checkpoint.load(str(Path(args.run_folder) / "resume.pt"))
     env_id = content["args"]["env_id"]
     cli.register_goal_tasks()
-    saved = content | {"normalizer_class": "InputNormalizer", "last_eval_seeds": []}  # goal tasks
-    policy = Policy(saved, env_id)
+    policy = Policy(content, env_id)  # checkpoint.load names a resume.pt's normaliser
     print(f"{env_id}, {content['global_step']:,} steps: the deterministic policy")
     for where, r in policy_by_goal(policy, env_id, range(10**6, 10**6 + args.episodes)).items():
         print(f"  goals {where:5}: {r['episodes']:3} episodes, success {r['success']:.2f}, "

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import scalars
 
-from benchmarks import fetch_lifts, profile_phases, report, run, update_speed
+from benchmarks import fetch_lifts, profile_phases, report, run, slide_strikes, update_speed
 
 
 def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path, capsys):
@@ -255,3 +255,18 @@ def test_fetch_lifts_counts_a_held_lift_not_a_knock_in_time_order():
     measured = fetch_lifts.policy_by_goal(lambda obs: np.zeros(4), "FetchPickAndPlace-v4", range(4))
     assert sum(r["episodes"] for r in measured.values()) == 4
     assert all(r["held"] == 0 for r in measured.values() if r["episodes"])  # standing still
+
+
+def test_slide_strikes_measures_a_slide_along_and_beside_its_line():
+    """Half way to a goal 0.4 m ahead and 5 cm to its left; a goal straight along +y overshot; a
+    still policy never moves the puck and never succeeds; a scripted strike slides it."""
+    start = np.array([1.0, 0.5, 0.42])
+    half = slide_strikes.slide_outcome(start, start + [0.4, 0, 0], start + [0.2, 0.05, 0])
+    assert np.allclose(half, (0.5, 0.05))
+    past = slide_strikes.slide_outcome(start, start + [0, 0.3, 0], start + [-0.02, 0.45, 0])
+    assert np.allclose(past, (1.5, 0.02))
+    still = slide_strikes.policy_strikes(lambda obs: np.zeros(4), range(3))
+    assert still.shape == (3, 5) and still[:, 1].sum() == 0
+    assert np.allclose(still[:, 2], 0, atol=1e-3) and np.all(still[:, 4] < 1e-3)
+    struck = [s for s in map(slide_strikes.scripted_strike, range(3)) if s]
+    assert struck and all(speed > 0.03 and slide > 0.4 for speed, slide in struck)
