@@ -60,6 +60,23 @@ def policy_strikes(policy, seeds: range) -> np.ndarray:
     return np.array(rows, float)
 
 
+def replay_slides(rb: dict, since: float = 0.6) -> tuple[float, float]:
+    """Of the replay buffer's training episodes after the first ``since`` of them (in the order
+    written; runs of at most ``--buffer-size`` steps): the share that slid the puck at least 0.55
+    m (the far third of goals) and stayed on the table, and the share that left the table."""
+
+    def episodes(x):  # (steps, envs, ...) -> (episodes in time order, steps, ...)
+        x = np.asarray(x)[: len(x) // EPISODE * EPISODE]
+        return x.reshape(-1, EPISODE, *x.shape[1:]).swapaxes(1, 2).reshape(-1, EPISODE, x.shape[-1])
+
+    start, end = episodes(rb["achieved_goal"])[:, 0], episodes(rb["next_achieved_goal"])[:, -1]
+    late = slice(int(len(start) * since), None)
+    start, end = start[late], end[late]
+    on_table = end[:, 2] > start[:, 2] - 0.1
+    far = np.linalg.norm((end - start)[:, :2], axis=1) >= 0.55
+    return float(np.mean(far & on_table)), float(1 - np.mean(on_table))
+
+
 def scripted_strike(seed: int, run_up: float = 0.1) -> tuple[float, float] | None:
     """What the arm can do: lift 6 cm, go ``run_up`` + 3 cm behind the puck on its line to the
     goal, come down, then 12 steps of the full action along that line. The puck's top speed and
@@ -106,6 +123,10 @@ if __name__ == "__main__":
     beside = np.median(np.abs(fail[:, 3]))
     print(f"  failures ({len(fail)}): stopped short (< 0.9 of the way) {short:.2f}, past the goal "
           f"(> 1.1) {past:.2f}, median distance beside the line {beside:.3f} m")  # fmt: skip
+    if "rb" in content:  # a resume.pt: what the exploring policy did in training
+        far, fell = replay_slides(content["rb"])
+        print(f"  training episodes of the last 40% of the replay buffer: slid at least 0.55 m "
+              f"{far:.2f}, left the table {fell:.2f}")  # fmt: skip
     scripted = [s for s in map(scripted_strike, range(3000, 3000 + args.episodes // 10)) if s]
     speed, slide = np.median(scripted, axis=0)
     print(f"  a scripted full strike ({len(scripted)} of {args.episodes // 10} episodes): the "

@@ -270,3 +270,16 @@ def test_slide_strikes_measures_a_slide_along_and_beside_its_line():
     assert np.allclose(still[:, 2], 0, atol=1e-3) and np.all(still[:, 4] < 1e-3)
     struck = [s for s in map(slide_strikes.scripted_strike, range(3)) if s]
     assert struck and all(speed > 0.03 and slide > 0.4 for speed, slide in struck)
+
+
+def test_slide_strikes_reads_far_slides_and_falls_from_the_replay_buffer_in_time_order():
+    """Two envs, two episodes each: the later episode of env 0 slides 0.6 m, the earlier of env 1
+    falls off the table; the rest stand still."""
+    start = np.array([1.3, 0.75, 0.41])
+    goals = np.tile(start, (100, 2, 1))
+    after = goals.copy()
+    after[50:, 0] += [0.6, 0, 0]  # env 0's second episode: a far slide
+    after[:50, 1, 2] -= 0.4  # env 1's first episode: off the table
+    rb = {"achieved_goal": goals, "next_achieved_goal": after}
+    assert slide_strikes.replay_slides(rb, since=0) == (0.25, 0.25)
+    assert slide_strikes.replay_slides(rb, since=0.5) == (0.5, 0.0)
