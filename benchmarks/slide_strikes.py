@@ -1,6 +1,6 @@
 """Where a FetchSlide run falls short: success by how far the puck must slide, where failed slides
-stop (short of the goal, past it, or beside it), how hard the puck was struck, and how hard a
-scripted strike at the full action strikes it.
+stop (short of the goal, past it, or beside it), how hard the puck was struck and pushed, what
+the exploring policy slid in training, and what scripted pushes do.
 
     python benchmarks/slide_strikes.py RUN_FOLDER [--episodes 200]
 
@@ -21,6 +21,7 @@ from common import checkpoint, cli  # noqa: E402
 from common.evaluate import Policy  # noqa: E402
 
 ENV_ID, EPISODE, PUCK_VELP, GRIP_VELP = "FetchSlide-v4", 50, slice(14, 16), slice(20, 22)
+MOVED, PUSH = 0.005, 5  # metres the puck must move to count as struck; steps of a push
 
 
 def slide_outcome(start: np.ndarray, goal: np.ndarray, end: np.ndarray) -> tuple[float, float]:
@@ -44,18 +45,32 @@ def puck_speed(obs: dict, along: np.ndarray) -> float:
     return float((o[PUCK_VELP] + o[GRIP_VELP]) @ along)
 
 
+def follow(env, obs: dict, start, along, act, steps: int):
+    """Step ``act(obs, step)`` ``steps`` times. The last observation and info, and how the puck
+    was struck: its highest speed along the line, the gripper's speed along it as the step that
+    first moved the puck began (how fast it came in), and the mean action along the line over
+    the ``PUSH`` steps from that one (1: the full push)."""
+    peak, speed, came_in, pushes = 0.0, 0.0, None, []
+    for step in range(steps):
+        action = act(obs, step)
+        obs, _, _, _, info = env.step(action)
+        peak = max(peak, puck_speed(obs, along))
+        if pushes or np.linalg.norm(obs["achieved_goal"] - start) > MOVED:
+            came_in = speed if came_in is None else came_in
+            pushes.append(action[:2] @ along * np.abs(along).max())  # the full: along / max
+        speed = float(obs["observation"][GRIP_VELP] @ along)
+    return obs, info, (peak, came_in or 0.0, np.mean(pushes[:PUSH]) if pushes else 0.0)
+
+
 def policy_strikes(policy, seeds: range) -> np.ndarray:
-    """Per episode: distance to slide, success, ``slide_outcome``'s two numbers, and the puck's
-    highest speed along the slide (metres per step: how hard it was struck)."""
+    """Per episode: distance to slide, success, ``slide_outcome``'s two numbers and ``follow``'s
+    three (metres per step)."""
     env, rows = gym.make(ENV_ID), []
     for seed in seeds:
         obs, start, goal, along = reset(env, seed)
-        peak = 0.0
-        for _ in range(EPISODE):
-            obs, _, _, _, info = env.step(policy(obs))
-            peak = max(peak, puck_speed(obs, along))
+        obs, info, struck = follow(env, obs, start, along, lambda o, _: policy(o), EPISODE)
         rows.append((np.linalg.norm((goal - start)[:2]), info["is_success"],
-                     *slide_outcome(start, goal, obs["achieved_goal"]), peak))  # fmt: skip
+                     *slide_outcome(start, goal, obs["achieved_goal"]), *struck))  # fmt: skip
     env.close()
     return np.array(rows, float)
 
@@ -77,16 +92,15 @@ def replay_slides(rb: dict, since: float = 0.6) -> tuple[float, float]:
     return float(np.mean(far & on_table)), float(1 - np.mean(on_table))
 
 
-def scripted_strike(seed: int, run_up: float = 0.1) -> tuple[float, float] | None:
-    """What the arm can do: lift 6 cm, go ``run_up`` + 3 cm behind the puck on its line to the
-    goal, come down, then 12 steps of the full action along that line. The puck's top speed and
-    how far it slid along the line; None if getting behind it moved the puck (or it fell)."""
+def scripted_strike(seed: int, push=1.0, hold=12, height=0.005, behind=0.13):
+    """What the arm can do: lift 6 cm, go ``behind`` metres behind the puck on its line to the
+    goal, come down to ``height`` above its centre, then ``hold`` steps of ``push`` times the full
+    action along that line. How far the puck slid along the line and ``follow``'s three; None if
+    getting behind it moved the puck (or the puck fell)."""
     env = gym.make(ENV_ID)
     obs, start, goal, along = reset(env, seed)
-    behind = start[:2] - (run_up + 0.03) * along
-    steps, peak = 0, 0.0
-    up = start[2] + 0.06
-    waypoints = ((*obs["observation"][:2], up), (*behind, up), (*behind, start[2] + 0.005))
+    back, up, steps = start[:2] - behind * along, start[2] + 0.06, 0
+    waypoints = ((*obs["observation"][:2], up), (*back, up), (*back, start[2] + height))
     for target, budget in zip(waypoints, (10, 15, 8), strict=True):
         for _ in range(budget):  # proportional control to each waypoint
             error = np.array(target) - obs["observation"][:3]
@@ -94,15 +108,14 @@ def scripted_strike(seed: int, run_up: float = 0.1) -> tuple[float, float] | Non
                 break
             obs = env.step(np.r_[np.clip(error * 30, -1, 1), 0.0])[0]
             steps += 1
-    if np.linalg.norm(obs["achieved_goal"] - start) > 0.005:
+    if np.linalg.norm(obs["achieved_goal"] - start) > MOVED:
         return None
-    strike = np.r_[along / np.abs(along).max(), 0.0, 0.0]  # the full action along the line
-    for step in range(EPISODE - steps):
-        obs = env.step(strike if step < 12 else np.zeros(4))[0]
-        peak = max(peak, puck_speed(obs, along))
+    strike = np.r_[push * along / np.abs(along).max(), 0.0, 0.0]  # the full action: push = 1
+    act = lambda _, step: strike if step < hold else np.zeros(4)  # noqa: E731
+    obs, _, struck = follow(env, obs, start, along, act, EPISODE - steps)
     env.close()
     end = obs["achieved_goal"]
-    return None if end[2] < start[2] - 0.1 else (peak, float((end - start)[:2] @ along))
+    return None if end[2] < start[2] - 0.1 else (float((end - start)[:2] @ along), *struck)
 
 
 if __name__ == "__main__":
@@ -116,8 +129,10 @@ if __name__ == "__main__":
     r = policy_strikes(Policy(content, ENV_ID), range(3000, 3000 + args.episodes))
     print(f"{args.run_folder}: success {r[:, 1].mean():.2f} over {len(r)} fresh episodes")
     for part in np.array_split(r[np.argsort(r[:, 0])], 3):
-        print(f"  slides of {part[0, 0]:.2f}-{part[-1, 0]:.2f} m: success {part[:, 1].mean():.2f}, "
-              f"the puck's top speed {np.median(part[:, 4]):.4f} m/step (median)")  # fmt: skip
+        peak, came_in, pushed = np.median(part[:, 4:], axis=0)
+        print(f"  slides of {part[0, 0]:.2f}-{part[-1, 0]:.2f} m: success {part[:, 1].mean():.2f}; "
+              f"medians: the puck's top speed {peak:.4f}, the gripper coming in at {came_in:.4f} "
+              f"(m/step), pushing at {pushed:.2f} of the full action")  # fmt: skip
     fail = r[r[:, 1] == 0]
     short, past = np.mean(fail[:, 2] < 0.9), np.mean(fail[:, 2] > 1.1)
     beside = np.median(np.abs(fail[:, 3]))
@@ -127,8 +142,14 @@ if __name__ == "__main__":
         far, fell = replay_slides(content["rb"])
         print(f"  training episodes of the last 40% of the replay buffer: slid at least 0.55 m "
               f"{far:.2f}, left the table {fell:.2f}")  # fmt: skip
-    scripted = [s for s in map(scripted_strike, range(3000, 3000 + args.episodes // 10)) if s]
-    speed, slide = np.median(scripted, axis=0)
-    print(f"  a scripted full strike ({len(scripted)} of {args.episodes // 10} episodes): the "
-          f"puck's top speed {speed:.4f} m/step, slides {slide:.2f} m (median), at most "
-          f"{np.max(scripted, axis=0)[1]:.2f} m")  # fmt: skip
+    seeds = range(3000, 3000 + args.episodes // 10)
+    for name, how in (("the full push, 13 cm behind", {}), ("0.95 of it", {"push": 0.95}),
+                      ("0.9 of it", {"push": 0.9}), ("from rest at 5 cm", {"behind": 0.05}),
+                      ("stopped after 3 steps", {"hold": 3}),
+                      ("3 cm higher", {"height": 0.035})):  # fmt: skip
+        struck = [s for s in (scripted_strike(seed, **how) for seed in seeds) if s]
+        slide, peak, came_in, _ = np.median(struck, axis=0)
+        print(
+            f"  scripted, {name} ({len(struck)} of {len(seeds)} episodes): slides {slide:.2f} m; "
+            f"medians: the puck's top speed {peak:.4f}, the gripper coming in at {came_in:.4f}"
+        )
