@@ -48,23 +48,28 @@ def puck_speed(obs: dict, along: np.ndarray) -> float:
 def follow(env, obs: dict, start, along, act, steps: int):
     """Step ``act(obs, step)`` ``steps`` times. The last observation and info, and how the puck
     was struck: its highest speed along the line, the gripper's speed along it as the step that
-    first moved the puck began (how fast it came in), and the mean action along the line over
-    the ``PUSH`` steps from that one (1: the full push)."""
+    first moved the puck began (how fast it came in), and over the ``PUSH`` steps from that one
+    the mean action along the line (1: the full push, ``along / max |along|``), on the line's
+    main axis (1: at the bound) and how far the other axis is from the full push's, on average."""
     peak, speed, came_in, pushes = 0.0, 0.0, None, []
+    main, full = np.argmax(np.abs(along)), along / np.abs(along).max()
     for step in range(steps):
         action = act(obs, step)
         obs, _, _, _, info = env.step(action)
         peak = max(peak, puck_speed(obs, along))
         if pushes or np.linalg.norm(obs["achieved_goal"] - start) > MOVED:
             came_in = speed if came_in is None else came_in
-            pushes.append(action[:2] @ along * np.abs(along).max())  # the full: along / max
+            a = action[:2]
+            pushes.append((a @ along / (full @ along), a[main] / full[main],
+                           abs(a[1 - main] - full[1 - main])))  # fmt: skip
         speed = float(obs["observation"][GRIP_VELP] @ along)
-    return obs, info, (peak, came_in or 0.0, np.mean(pushes[:PUSH]) if pushes else 0.0)
+    pushed = np.mean(pushes[:PUSH], axis=0) if pushes else np.zeros(3)
+    return obs, info, (peak, came_in or 0.0, *pushed)
 
 
 def policy_strikes(policy, seeds: range) -> np.ndarray:
     """Per episode: distance to slide, success, ``slide_outcome``'s two numbers and ``follow``'s
-    three (metres per step)."""
+    five (speeds in metres per step)."""
     env, rows = gym.make(ENV_ID), []
     for seed in seeds:
         obs, start, goal, along = reset(env, seed)
@@ -95,7 +100,7 @@ def replay_slides(rb: dict, since: float = 0.6) -> tuple[float, float]:
 def scripted_strike(seed: int, push=1.0, hold=12, height=0.005, behind=0.13):
     """What the arm can do: lift 6 cm, go ``behind`` metres behind the puck on its line to the
     goal, come down to ``height`` above its centre, then ``hold`` steps of ``push`` times the full
-    action along that line. How far the puck slid along the line and ``follow``'s three; None if
+    action along that line. How far the puck slid along the line and ``follow``'s five; None if
     getting behind it moved the puck (or the puck fell)."""
     env = gym.make(ENV_ID)
     obs, start, goal, along = reset(env, seed)
@@ -129,10 +134,11 @@ if __name__ == "__main__":
     r = policy_strikes(Policy(content, ENV_ID), range(3000, 3000 + args.episodes))
     print(f"{args.run_folder}: success {r[:, 1].mean():.2f} over {len(r)} fresh episodes")
     for part in np.array_split(r[np.argsort(r[:, 0])], 3):
-        peak, came_in, pushed = np.median(part[:, 4:], axis=0)
+        peak, came_in, pushed, main, other = np.median(part[:, 4:], axis=0)
         print(f"  slides of {part[0, 0]:.2f}-{part[-1, 0]:.2f} m: success {part[:, 1].mean():.2f}; "
               f"medians: the puck's top speed {peak:.4f}, the gripper coming in at {came_in:.4f} "
-              f"(m/step), pushing at {pushed:.2f} of the full action")  # fmt: skip
+              f"(m/step), pushing at {pushed:.2f} of the full action ({main:.2f} on its main "
+              f"axis, the other axis {other:.2f} from the full push's)")  # fmt: skip
     fail = r[r[:, 1] == 0]
     short, past = np.mean(fail[:, 2] < 0.9), np.mean(fail[:, 2] > 1.1)
     beside = np.median(np.abs(fail[:, 3]))
@@ -148,7 +154,7 @@ if __name__ == "__main__":
                       ("stopped after 3 steps", {"hold": 3}),
                       ("3 cm higher", {"height": 0.035})):  # fmt: skip
         struck = [s for s in (scripted_strike(seed, **how) for seed in seeds) if s]
-        slide, peak, came_in, _ = np.median(struck, axis=0)
+        slide, peak, came_in, *_ = np.median(struck, axis=0)
         print(
             f"  scripted, {name} ({len(struck)} of {len(seeds)} episodes): slides {slide:.2f} m; "
             f"medians: the puck's top speed {peak:.4f}, the gripper coming in at {came_in:.4f}"

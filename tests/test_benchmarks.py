@@ -266,13 +266,15 @@ def test_slide_strikes_measures_a_slide_along_and_beside_its_line():
     past = slide_strikes.slide_outcome(start, start + [0, 0.3, 0], start + [-0.02, 0.45, 0])
     assert np.allclose(past, (1.5, 0.02))
     still = slide_strikes.policy_strikes(lambda obs: np.zeros(4), range(3))
-    assert still.shape == (3, 7) and still[:, 1].sum() == 0
+    assert still.shape == (3, 9) and still[:, 1].sum() == 0
     assert np.allclose(still[:, 2], 0, atol=1e-3) and np.all(still[:, 4:] < 1e-3)
-    struck = [s for s in map(slide_strikes.scripted_strike, range(3)) if s]  # full push: 1
-    assert struck and all(slide > 0.4 and peak > 0.03 for slide, peak, _, _ in struck)
-    assert all(came_in > 0.015 and np.isclose(push, 1) for _, _, came_in, push in struck)
-    held = [s for s in (slide_strikes.scripted_strike(seed, push=0.5) for seed in range(3)) if s]
-    assert held and all(np.isclose(push, 0.5) for *_, push in held)
+    struck = [s for s in map(slide_strikes.scripted_strike, range(3)) if s]  # the full push
+    assert struck and all(slide > 0.4 and peak > 0.03 for slide, peak, *_ in struck)
+    assert all(came_in > 0.015 for _, _, came_in, *_ in struck)
+    assert np.allclose([s[3:] for s in struck], (1, 1, 0))  # along the line, main axis, other
+    halved = [s for s in (slide_strikes.scripted_strike(seed, push=0.5) for seed in range(3)) if s]
+    assert halved and np.allclose([s[3:5] for s in halved], 0.5)  # the other axis: half its own
+    assert all(0.1 < other < 0.4 for *_, other in halved)  # these lines lie off the axes
 
 
 def test_slide_strikes_reads_far_slides_and_falls_from_the_replay_buffer_in_time_order():
