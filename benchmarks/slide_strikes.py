@@ -1,11 +1,13 @@
 """Where a FetchSlide run falls short: success by how far the puck must slide, where failed slides
 stop (short of the goal, past it, or beside it), how hard the puck was struck and pushed, what
-the exploring policy slid in training, and what scripted pushes do.
+the exploring policy slid in training, and what scripted pushes do. ``--gains``: the success of
+harder pushes on the same aim; ``--critic``: whether the run's critic asks for one.
 
-    python benchmarks/slide_strikes.py RUN_FOLDER [--episodes 200]
+    python benchmarks/slide_strikes.py RUN_FOLDER [--episodes 200] [--gains 1.1 1.2] [--critic]
 
-RUN_FOLDER is an ``ipg_her.py`` run folder with a ``resume.pt`` or ``model.pt``. Speeds are the
-environment's own velocities (metres per step of 0.04 s) along the puck's line to its goal.
+RUN_FOLDER is an ``ipg_her.py`` run folder with a ``resume.pt`` (``--critic`` needs one) or a
+``model.pt``. Speeds are the environment's own velocities (metres per step of 0.04 s) along the
+puck's line to its goal.
 """
 
 import argparse
@@ -17,6 +19,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+import ipg_her  # noqa: E402
 from common import checkpoint, cli  # noqa: E402
 from common.evaluate import Policy  # noqa: E402
 
@@ -67,15 +70,60 @@ def follow(env, obs: dict, start, along, act, steps: int):
     return obs, info, (peak, came_in or 0.0, *pushed)
 
 
-def policy_strikes(policy, seeds: range) -> np.ndarray:
+def with_gain(policy, start: np.ndarray, gain: float):
+    """``follow``'s ``act``: the policy, its x and y action times ``gain`` (clipped to the bounds)
+    once the puck has moved from ``start``."""
+
+    def act(obs: dict, _step: int) -> np.ndarray:
+        a = policy(obs)  # float32: float64 actions alone change the outcomes (slides are chaotic)
+        if gain != 1 and np.linalg.norm(obs["achieved_goal"] - start) > MOVED:
+            a = np.clip(a * np.array([gain, gain, 1, 1], a.dtype), -1, 1)
+        return a
+
+    return act
+
+
+def policy_strikes(policy, seeds: range, gain: float = 1.0) -> np.ndarray:
     """Per episode: distance to slide, success, ``slide_outcome``'s two numbers and ``follow``'s
-    five (speeds in metres per step)."""
+    five (speeds in metres per step). ``gain``: the x and y action times ``gain`` (clipped to the
+    bounds) once the puck has moved, to ask whether a harder push on the same aim would do."""
     env, rows = gym.make(ENV_ID), []
     for seed in seeds:
         obs, start, goal, along = reset(env, seed)
-        obs, info, struck = follow(env, obs, start, along, lambda o, _: policy(o), EPISODE)
+        obs, info, struck = follow(env, obs, start, along, with_gain(policy, start, gain), EPISODE)
         rows.append((np.linalg.norm((goal - start)[:2]), info["is_success"],
                      *slide_outcome(start, goal, obs["achieved_goal"]), *struck))  # fmt: skip
+    env.close()
+    return np.array(rows, float)
+
+
+def critic(content: dict) -> torch.nn.Module:
+    """The run's critic Q_w from its ``resume.pt``, as ``ipg_her.py`` built it."""
+    a, state = content["args"], content["qf"]
+    qf = ipg_her.QNetwork(state["net.0.weight"].shape[1] - 4, 4, a["hidden"], -np.ones(4),
+                          np.ones(4), a["twin_critic"])  # fmt: skip
+    qf.load_state_dict(state)
+    return qf
+
+
+def critic_at_contact(qf, policy, seeds: range, gain: float = 1.2) -> np.ndarray:
+    """Does the critic want a harder push? At the step whose action first moves the puck, per
+    episode: distance to slide, Q_1's slope along the line (dQ_1/da . the line), Q_1 of that
+    action with x and y times ``gain`` (clipped) minus Q_1 of it, and the action along the line."""
+    env, rows, scale = gym.make(ENV_ID), [], torch.tensor([gain, gain, 1, 1])
+    for seed in seeds:
+        obs, start, goal, along = reset(env, seed)
+        for _ in range(EPISODE):
+            x, a = policy.inputs(obs).float(), torch.tensor(policy(obs))[None].requires_grad_()
+            q = qf(x, a)
+            slope = torch.autograd.grad(q.sum(), a)[0][0, :2].numpy() @ along
+            with torch.no_grad():
+                harder = (qf(x, torch.clamp(a * scale, -1, 1)) - q).item()
+            action = a[0].detach().numpy()
+            obs = env.step(action)[0]
+            if np.linalg.norm(obs["achieved_goal"] - start) > MOVED:
+                break
+        rows.append((np.linalg.norm((goal - start)[:2]), slope, harder, action[:2] @ along))
     env.close()
     return np.array(rows, float)
 
@@ -127,6 +175,8 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("run_folder")
     parser.add_argument("--episodes", type=int, default=200)
+    parser.add_argument("--gains", type=float, nargs="*", default=[], help="x, y push gains")
+    parser.add_argument("--critic", action="store_true", help="Q_1 at the step that moves the puck")
     args = parser.parse_args()
     torch.set_num_threads(1)
     cli.register_goal_tasks()
@@ -139,6 +189,21 @@ if __name__ == "__main__":
               f"medians: the puck's top speed {peak:.4f}, the gripper coming in at {came_in:.4f} "
               f"(m/step), pushing at {pushed:.2f} of the full action ({main:.2f} on its main "
               f"axis, the other axis {other:.2f} from the full push's)")  # fmt: skip
+    for gain in args.gains:
+        g = policy_strikes(Policy(content, ENV_ID), range(3000, 3000 + len(r)), gain)
+        parts = np.array_split(g[g[:, 0].argsort()], 3)
+        thirds = " / ".join(f"{p[:, 1].mean():.2f}" for p in parts)
+        short = np.mean(g[g[:, 1] == 0, 2] < 0.9)
+        print(f"  x, y action times {gain} once the puck moved: success {g[:, 1].mean():.2f}, "
+              f"near / middle / far {thirds}; failures stopped short {short:.2f}")  # fmt: skip
+    if args.critic:
+        c = critic_at_contact(critic(content), Policy(content, ENV_ID), range(3000, 3000 + len(r)))
+        for part in np.array_split(c[c[:, 0].argsort()], 3):
+            slope, harder, pushed = np.median(part[:, 1:], axis=0)
+            wants = np.mean(part[:, 2] > 0)
+            print(f"  slides of {part[0, 0]:.2f}-{part[-1, 0]:.2f} m, the step moving the puck: "
+                  f"dQ_1/da along the line {slope:+.2f}, Q_1(x, y times 1.2) - Q_1 {harder:+.3f} "
+                  f"(> 0 in {wants:.2f}), action along the line {pushed:.2f}")  # fmt: skip
     fail = r[r[:, 1] == 0]
     short, past = np.mean(fail[:, 2] < 0.9), np.mean(fail[:, 2] > 1.1)
     beside = np.median(np.abs(fail[:, 3]))
@@ -159,3 +224,9 @@ if __name__ == "__main__":
             f"  scripted, {name} ({len(struck)} of {len(seeds)} episodes): slides {slide:.2f} m; "
             f"medians: the puck's top speed {peak:.4f}, the gripper coming in at {came_in:.4f}"
         )
+    far = np.array_split(np.argsort(r[:, 0]), 3)[-1]  # can the full push reach the far goals?
+    reach = np.array([(r[i, 0], s[0]) for i in far if (s := scripted_strike(3000 + int(i)))])
+    print(f"  scripted, the full push on the far third's goals ({len(reach)} of {len(far)} "
+          f"episodes): slides {np.min(reach[:, 1]):.2f}-{np.max(reach[:, 1]):.2f} m (median "
+          f"{np.median(reach[:, 1]):.2f}), to within 5 cm of the goal's distance or beyond in "
+          f"{np.mean(reach[:, 1] >= reach[:, 0] - 0.05):.2f}")  # fmt: skip

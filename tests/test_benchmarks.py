@@ -3,8 +3,10 @@ failing run."""
 
 import re
 
+import gymnasium as gym
 import numpy as np
 import pytest
+import torch
 from conftest import scalars
 
 from benchmarks import fetch_lifts, profile_phases, report, run, slide_strikes, update_speed
@@ -275,6 +277,43 @@ def test_slide_strikes_measures_a_slide_along_and_beside_its_line():
     halved = [s for s in (slide_strikes.scripted_strike(seed, push=0.5) for seed in range(3)) if s]
     assert halved and np.allclose([s[3:5] for s in halved], 0.5)  # the other axis: half its own
     assert all(0.1 < other < 0.4 for *_, other in halved)  # these lines lie off the axes
+
+
+def test_slide_strikes_gain_scales_x_and_y_only_once_the_puck_has_moved():
+    start = np.array([1.3, 0.75, 0.41])
+    policy = lambda obs: np.array([0.6, -0.3, 0.5, 0.2], np.float32)  # noqa: E731
+    act = slide_strikes.with_gain(policy, start, 1.5)
+    assert np.array_equal(act({"achieved_goal": start + [0.004, 0, 0]}, 0), policy(None))
+    pushed = act({"achieved_goal": start + [0.01, 0, 0]}, 1)
+    assert pushed.dtype == np.float32 and np.allclose(pushed, [0.9, -0.45, 0.5, 0.2])
+    assert np.allclose(slide_strikes.with_gain(policy, start, 2)({"achieved_goal": start + 1}, 2),
+                       [1.0, -0.6, 0.5, 0.2])  # clipped to the bounds  # fmt: skip
+
+
+def test_slide_strikes_reads_the_critic_at_the_step_that_moves_the_puck():
+    """A critic Q = max(a_x, 0) by hand: its slope along the line is the line's x share, and
+    pushing 1.2 times harder from a_x = 0.5 gains 0.1."""
+    import ipg_her  # the run's critic
+
+    qf = ipg_her.QNetwork(3, 4, hidden=2, low=-1.0, high=1.0)
+    with torch.no_grad():
+        for layer in qf.net[::2]:
+            layer.weight.zero_(), layer.bias.zero_()
+        qf.net[0].weight[0, 3] = qf.net[2].weight[0, 0] = qf.net[4].weight[0, 0] = 1.0  # a_x
+
+    class Pushing:  # the policy's interface: its inputs and its action
+        inputs = staticmethod(lambda obs: torch.zeros(1, 3))
+        __call__ = staticmethod(lambda obs: np.array([0.5, 0, 0, 0], np.float32))
+
+    rows = slide_strikes.critic_at_contact(qf, Pushing(), range(2))
+    saved = ipg_her.QNetwork(24, 4, hidden=8, low=-1.0, high=1.0, twin=True)  # as a run saves it
+    content = {"args": {"hidden": 8, "twin_critic": True}, "qf": saved.state_dict()}
+    x, a = torch.randn(5, 24), torch.randn(5, 4)
+    assert torch.equal(slide_strikes.critic(content)(x, a, True)[1], saved(x, a, True)[1])
+    along = [slide_strikes.reset(gym.make("FetchSlide-v4"), seed)[3] for seed in range(2)]
+    assert np.allclose(rows[:, 1], [line[0] for line in along], atol=1e-6)
+    assert np.allclose(rows[:, 2], 0.1, atol=1e-6)
+    assert np.allclose(rows[:, 3], [0.5 * line[0] for line in along], atol=1e-6)
 
 
 def test_slide_strikes_reads_far_slides_and_falls_from_the_replay_buffer_in_time_order():
