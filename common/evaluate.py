@@ -201,9 +201,11 @@ class BackgroundEvaluator:
         return done
 
     def close(self) -> None:
-        """Stop the worker, dropping evaluations not yet finished."""
+        """Stop the worker, dropping evaluations not yet finished. With none pending (a finished
+        run) wait for it to exit: a pool still winding down races the interpreter's exit
+        handler, which on Python 3.11 can end a finished run with ``OSError: [Errno 9]``."""
         if self.pool is not None:
-            self.pool.shutdown(wait=False, cancel_futures=True)
+            self.pool.shutdown(wait=not self.pending, cancel_futures=True)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -205,6 +205,20 @@ def test_background_evaluator_returns_results_in_submission_order(workers):
         np.testing.assert_array_equal(result, expected)
 
 
+def test_background_evaluator_closes_its_worker_before_returning_once_nothing_is_pending():
+    """A pool left winding down when the run exits races the interpreter's own shutdown (on
+    Python 3.11 an ``OSError: [Errno 9] Bad file descriptor`` at the end of a finished run)."""
+    import multiprocessing
+
+    from common.evaluate import BackgroundEvaluator
+
+    evaluator = BackgroundEvaluator(1)
+    evaluator.submit(100, np.multiply, 2.0, 3.0)
+    assert evaluator.finished(wait=True) == [(100, 6.0)]
+    evaluator.close()
+    assert multiprocessing.active_children() == []
+
+
 def test_resume_accepts_flags_added_since_at_their_defaults_and_refuses_a_jumping_schedule(
     tmp_path,
 ):
