@@ -85,8 +85,7 @@ def with_gain(policy, start: np.ndarray, gain: float):
 
 def policy_strikes(policy, seeds: range, gain: float = 1.0) -> np.ndarray:
     """Per episode: distance to slide, success, ``slide_outcome``'s two numbers and ``follow``'s
-    five (speeds in metres per step). ``gain``: the x and y action times ``gain`` (clipped to the
-    bounds) once the puck has moved, to ask whether a harder push on the same aim would do."""
+    five (speeds in metres per step); ``gain``: ``with_gain``'s."""
     env, rows = gym.make(ENV_ID), []
     for seed in seeds:
         obs, start, goal, along = reset(env, seed)
@@ -181,7 +180,8 @@ if __name__ == "__main__":
     torch.set_num_threads(1)
     cli.register_goal_tasks()
     content = checkpoint.load(args.run_folder)
-    r = policy_strikes(Policy(content, ENV_ID), range(3000, 3000 + args.episodes))
+    policy, episodes = Policy(content, ENV_ID), range(3000, 3000 + args.episodes)  # reset seeds
+    r = policy_strikes(policy, episodes)
     print(f"{args.run_folder}: success {r[:, 1].mean():.2f} over {len(r)} fresh episodes")
     for part in np.array_split(r[np.argsort(r[:, 0])], 3):
         peak, came_in, pushed, main, other = np.median(part[:, 4:], axis=0)
@@ -190,14 +190,14 @@ if __name__ == "__main__":
               f"(m/step), pushing at {pushed:.2f} of the full action ({main:.2f} on its main "
               f"axis, the other axis {other:.2f} from the full push's)")  # fmt: skip
     for gain in args.gains:
-        g = policy_strikes(Policy(content, ENV_ID), range(3000, 3000 + len(r)), gain)
+        g = policy_strikes(policy, episodes, gain)
         parts = np.array_split(g[g[:, 0].argsort()], 3)
         thirds = " / ".join(f"{p[:, 1].mean():.2f}" for p in parts)
         short = np.mean(g[g[:, 1] == 0, 2] < 0.9)
         print(f"  x, y action times {gain} once the puck moved: success {g[:, 1].mean():.2f}, "
               f"near / middle / far {thirds}; failures stopped short {short:.2f}")  # fmt: skip
     if args.critic:
-        c = critic_at_contact(critic(content), Policy(content, ENV_ID), range(3000, 3000 + len(r)))
+        c = critic_at_contact(critic(content), policy, episodes)
         for part in np.array_split(c[c[:, 0].argsort()], 3):
             slope, harder, pushed = np.median(part[:, 1:], axis=0)
             wants = np.mean(part[:, 2] > 0)
@@ -225,7 +225,7 @@ if __name__ == "__main__":
             f"medians: the puck's top speed {peak:.4f}, the gripper coming in at {came_in:.4f}"
         )
     far = np.array_split(np.argsort(r[:, 0]), 3)[-1]  # can the full push reach the far goals?
-    reach = np.array([(r[i, 0], s[0]) for i in far if (s := scripted_strike(3000 + int(i)))])
+    reach = np.array([(r[i, 0], s[0]) for i in far if (s := scripted_strike(episodes[i]))])
     print(f"  scripted, the full push on the far third's goals ({len(reach)} of {len(far)} "
           f"episodes): slides {np.min(reach[:, 1]):.2f}-{np.max(reach[:, 1]):.2f} m (median "
           f"{np.median(reach[:, 1]):.2f}), to within 5 cm of the goal's distance or beyond in "
