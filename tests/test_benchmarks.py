@@ -292,7 +292,7 @@ def test_slide_strikes_gain_scales_x_and_y_only_once_the_puck_has_moved():
 
 def test_slide_strikes_reads_the_critic_at_the_step_that_moves_the_puck():
     """A critic Q = max(a_x, 0) by hand: its slope along the line is the line's x share, and
-    pushing 1.2 times harder from a_x = 0.5 gains 0.1."""
+    pushing 1.2 times harder from a_x = 0.5 gains 0.1; a run's saved twin critic reads back."""
     import ipg_her  # the run's critic
 
     qf = ipg_her.QNetwork(3, 4, hidden=2, low=-1.0, high=1.0)
@@ -306,14 +306,14 @@ def test_slide_strikes_reads_the_critic_at_the_step_that_moves_the_puck():
         __call__ = staticmethod(lambda obs: np.array([0.5, 0, 0, 0], np.float32))
 
     rows = slide_strikes.critic_at_contact(qf, Pushing(), range(2))
-    saved = ipg_her.QNetwork(24, 4, hidden=8, low=-1.0, high=1.0, twin=True)  # as a run saves it
-    content = {"args": {"hidden": 8, "twin_critic": True}, "qf": saved.state_dict()}
-    x, a = torch.randn(5, 24), torch.randn(5, 4)
-    assert torch.equal(slide_strikes.critic(content)(x, a, True)[1], saved(x, a, True)[1])
     along = [slide_strikes.reset(gym.make("FetchSlide-v4"), seed)[3] for seed in range(2)]
     assert np.allclose(rows[:, 1], [line[0] for line in along], atol=1e-6)
     assert np.allclose(rows[:, 2], 0.1, atol=1e-6)
     assert np.allclose(rows[:, 3], [0.5 * line[0] for line in along], atol=1e-6)
+    saved = ipg_her.QNetwork(24, 4, hidden=8, low=-1.0, high=1.0, twin=True)  # as a run saves it
+    content = {"args": {"hidden": 8, "twin_critic": True}, "qf": saved.state_dict()}
+    x, a = torch.randn(5, 24), torch.randn(5, 4)
+    assert torch.equal(slide_strikes.critic(content)(x, a, True)[1], saved(x, a, True)[1])
 
 
 def test_slide_strikes_reads_far_slides_and_falls_from_the_replay_buffer_in_time_order():
