@@ -1,6 +1,5 @@
-"""Interpolated Policy Gradient (paper eq. 10) on PPO-KL, with Hindsight Experience Replay (Fig. 2).
-
-Docs: docs/ipg_her.md. Papers: Gu et al. 2017 (IPG), Andrychowicz et al. 2017 (HER), PPO-KL.
+"""Interpolated Policy Gradient (paper eq. 10; Gu et al. 2017) on PPO-KL, with Hindsight Experience
+Replay (Fig. 2; Andrychowicz et al. 2017). Docs: docs/ipg_her.md.
 
 IPG mixes the on-policy likelihood-ratio gradient with an off-policy one through a critic Q_w:
 
@@ -40,7 +39,7 @@ HARD_FETCH = dict(hidden=256, target_std=1.0, normalization="paper", action_l2=1
 TASK_DEFAULTS = {"FetchPush-v4": HARD_FETCH,  # flags win; sigma per x, y, z, gripper: results.md
     "FetchPickAndPlace-v4": HARD_FETCH | dict(grasped_start=0.5, target_std=(1.0, 1.0, 1.0, 0.3)),
     "FetchSlide-v4": HARD_FETCH | dict(target_std=(0.3, 0.3, 0.3, 1.0), action_l2=0.0,
-                                       bounds_loss=1.0)}  # fmt: skip
+                                       bounds_loss=1.0, anneal_lr=True)}  # fmt: skip
 
 
 @dataclass
@@ -57,6 +56,8 @@ class Args(RunArgs):
     """steps per env per rollout (batch = num_envs * num_steps; ipg_her.py: 50, one episode)"""
     learning_rate: float = 1e-3
     """the learning rate of Adam (ipg_her.py: 1e-3, OpenAI's HER recipe)"""
+    anneal_lr: bool = False
+    """anneal the learning rate linearly to zero (ipg_her.py: the critic's too; Slide's default)"""
     gamma: float = 0.98
     """the discount factor gamma (ipg_her.py: 0.98, OpenAI's HER recipe)"""
     gae_lambda: float = 0.95
@@ -83,10 +84,8 @@ class Args(RunArgs):
     """normalise observations (and goals) by running mean and std (saved with the model)"""
     norm_reward: bool = False
     """divide rewards by the running std of the discounted return (not Fetch's 0 / -1)"""
-    eval_freq: int = 2500
-    """evaluate the deterministic (mean) policy every this many env steps (0: only at the end)"""
+    eval_freq: int = 2500  # these two: RunArgs' help (common/run.py), ipg_her.py's defaults
     eval_episodes: int = 20
-    """episodes per evaluation"""
     diagnostics_every: int = 10
     """log the diagnostics ipg/* every this many updates (0: never; they leave training as is)"""
 
@@ -240,8 +239,7 @@ def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer,
                 data: dict, gamma: float, tau: float, target_range=None, sample=False):  # fmt: skip
     """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
     with torch.no_grad():  # Q_w'(s', a'), a' = mu(s') or a' ~ pi(s'); twin: the smaller (TD3)
-        pi_next = agent.dist(data["next_obs"])
-        a = pi_next.sample() if sample else pi_next.mean  # sample: torch's generator
+        a = agent.dist(data["next_obs"]).sample() if sample else agent.actor_mean(data["next_obs"])
         next_q = torch.stack(qf_target(data["next_obs"], a, True))
         target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q.min(0).values
         if target_range is not None:
@@ -296,13 +294,13 @@ def learning_signal(b: dict, args: Args):
 def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args,
                qf: QNetwork | None = None, replay=None, alpha=0.0):  # fmt: skip
     """``update_epochs`` passes of Adam on eq. 10 inside eq. 5, then the beta rule; s ~ beta: the
-    minibatch's states or ``replay()``'s. nu = 0 without control variate: ``ppo_kl_update``."""
+    minibatch's states or ``replay(n)``'s. nu = 0 without control variate: ``ppo_kl_update``."""
     batch_size = b["obs"].shape[0]
     minibatch_size = batch_size // args.num_minibatches
     adv, signal_std, off_weight, off_scale = learning_signal(b, args)
     use_off_policy = qf is not None and off_weight > 0
     from_replay = use_off_policy and args.off_policy_states == "replay"
-    replayed = iter(replay() if from_replay else ())  # drawn only if the update uses them
+    replayed = iter(replay(args.update_epochs * args.num_minibatches) if from_replay else ())
     pi_old = Normal(b["mean"], b["std"])
     actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
     for epoch in range(args.update_epochs):
@@ -391,15 +389,20 @@ if __name__ == "__main__":
         rb = HerReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, goal_dim,
                              compute_reward, args.her_n_sampled_goal if args.her else 0,
                              args.her_goal_selection_strategy, run.streams.replay_seed)  # fmt: skip
+    replay = lambda n, rng=None: sample_replay(rb, norm, 1.0, args.off_policy_batch_size, n, rng)
     reward_scaler = RewardScaler(args.num_envs, args.gamma)
     raw_obs, beta, alpha = run.start(
         envs, model=dict(agent=agent, normalizer=norm, qf=qf, qf_target=qf_target),
         training=dict(optimizer=optimizer, reward_scaler=reward_scaler,
-                      q_optimizer=q_optimizer, rb=rb),
-        beta=args.beta_init, alpha=0.0)  # fmt: skip
+                      q_optimizer=q_optimizer, rb=rb), beta=args.beta_init, alpha=0.0)  # fmt: skip
 
     with run:  # TRY NOT TO MODIFY: Ctrl-C, kill or a NaN end the run cleanly
         for iteration in run.iterations(num_iterations):
+            if args.anneal_lr:
+                frac = 1.0 - (iteration - 1.0) / num_iterations
+                optimizer.param_groups[0]["lr"] = frac * args.learning_rate
+                q_optimizer.param_groups[0]["lr"] = frac * args.critic_learning_rate
+
             # ALGO LOGIC: rollout
             ro, raw_obs, episodes = collect_rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
                                                     update_norm=args.norm_obs)  # fmt: skip
@@ -430,17 +433,14 @@ if __name__ == "__main__":
                 run.log({"ipg/cv_mean": b["cv"].mean().item()})
             diagnose = args.diagnostics_every and (iteration - 1) % args.diagnostics_every == 0
             if learning and diagnose:  # DIAGNOSTICS: the mixture, before the update (ipg/*)
-                off_states = b["obs"] if args.off_policy_states == "batch" else sample_replay(
-                    rb, norm, 1.0, args.off_policy_batch_size, 1, run.diagnostics_rng
-                )[0]["obs"]  # fmt: skip
+                off_states = b["obs"] if args.off_policy_states == "batch" else replay(
+                    1, run.diagnostics_rng)[0]["obs"]  # fmt: skip
                 cv = b["cv"] if args.use_cv else control_variate(qf, agent, b["obs"], b["actions"])
                 measured = diagnostics.interpolation_report(agent, qf, b, cv, args, off_states,
                     ipg_loss, learning_signal, run.diagnostics_generator)  # fmt: skip
                 run.log({f"ipg/{key}": value for key, value in measured.items()})
 
             # ALGO LOGIC: the IPG update (eq. 10 on eq. 5)
-            replay = lambda: sample_replay(rb, norm, 1.0, args.off_policy_batch_size,
-                                           args.update_epochs * args.num_minibatches)  # fmt: skip
             beta, stats = ipg_update(agent, optimizer, b, beta, args, qf if learning else None,
                                      replay, alpha)  # fmt: skip
             stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}

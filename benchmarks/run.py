@@ -85,7 +85,8 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     earlier controls; ``fetch``: ``ipg_her.py`` with no flag but the task's, Push 5 fresh seeds x
     300k (and nu 0.5, 0.8 on 3 of them x 200k), PickAndPlace 3 x 500k (and 3 with one sigma rule for
     all dimensions, ``_grasped``, and 3 without grasped starts either, ``_nograsp``), Slide 3 x 1M
-    (and with Push's defaults on the seeds it was tuned on, ``_sigma1``),
+    (and with constant learning rates, ``_constlr``, and Push's defaults on seeds it was tuned on,
+    ``_sigma1``, both without Slide's annealing),
     and Push and PickAndPlace with one critic (``_1critic``); ``quick``: the paper's shape on tiny
     budgets."""
     fetch = lambda name, script, *flags: (name, script, "FetchReach-v4", flags)  # noqa: E731
@@ -243,7 +244,7 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
         every = ("--eval-freq", "10000", "--eval-episodes", "50", "--resume-freq", "50000")
         tasks = {"FetchPush-v4": (300_000, (4, 5, 6, 7, 8)),  # its settings were tuned on 1-3
                  "FetchPickAndPlace-v4": (500_000, (4, 5, 6)),  # its settings tuned on 1-3
-                 "FetchSlide-v4": (1_000_000, (4, 5, 6))}  # tuned on 1-2  # fmt: skip
+                 "FetchSlide-v4": (1_000_000, (7, 8, 9))}  # tuned on 1, 2, 5, 6  # fmt: skip
         one = ("--no-twin-critic",)  # the defaults before the twin critic (its measured gain)
         grid = [Run(f"ipg_her{critic}_{steps // 1000}k", "ipg_her.py", env_id, seed,
                     ("--total-timesteps", str(steps), *every, *flags))
@@ -260,10 +261,13 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
                  for name, flags in (("grasped", ()), ("nograsp", nograsp),
                                      ("nograsp_1critic", (*nograsp, *one)))
                  for seed in seeds or ((4, 5, 6) if name == "grasped" else (1, 2, 3))]  # fmt: skip
-        # Slide with Push's defaults (one sigma rule for all dimensions, the action penalty)
+        # Slide before its annealed learning rates: its defaults then (seeds 4-6, fresh then), and
+        # Push's defaults (one sigma rule for all dimensions, the action penalty)
+        slide = ("--total-timesteps", "1000000", *every, "--no-anneal-lr")
+        grid += [Run("ipg_her_constlr_1000k", "ipg_her.py", "FetchSlide-v4", seed, slide)
+                 for seed in seeds or (4, 5, 6)]  # fmt: skip
         grid += [Run("ipg_her_sigma1_1000k", "ipg_her.py", "FetchSlide-v4", seed,
-                     ("--total-timesteps", "1000000", *every, "--target-std", "1.0",
-                      "--action-l2", "1.0", "--bounds-loss", "0.0"))
+                     (*slide, "--target-std", "1.0", "--action-l2", "1.0", "--bounds-loss", "0.0"))
                  for seed in seeds or (1, 2, 3)]  # fmt: skip
         # mixing asked again with Push's defaults: nu 0.5 and 0.8 against nu = 1 above, 200k; Push's
         # --normalization paper weighs the terms nu sigma_A : (1 - nu), so eq. 10's nu: "_eq10"

@@ -123,7 +123,11 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
         assert r.script == "ipg_her.py"
         critics = "1" if "--no-twin-critic" in r.flags else "2"
         assert (critics == "1") == ("_1critic" in r.name)
-        pairs = [f for f in r.flags if f != "--no-twin-critic"]
+        constlr = "--no-anneal-lr" in r.flags  # Slide's earlier defaults, and Push's on Slide
+        assert constlr == (
+            r.env_id == "FetchSlide-v4" and ("_constlr" in r.name or "_sigma1" in r.name)
+        )
+        pairs = [f for f in r.flags if f not in ("--no-twin-critic", "--no-anneal-lr")]
         flags = dict(zip(pairs[::2], pairs[1::2], strict=True))
         nu = flags.pop("--nu", "1.0")  # the mixing runs: nu alone differs
         std = flags.pop("--target-std", None)  # Slide's and PickAndPlace's earlier sigma rule
@@ -148,6 +152,7 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
             "--resume-freq",
         }
         assert (flags["--eval-freq"], flags["--eval-episodes"]) == ("10000", "50")
+        critics += "_constlr" if "_constlr" in r.name else ""
         budgets.setdefault((r.env_id, flags["--total-timesteps"], nu, critics), []).append(r.seed)
     for critics in ("1", "2"):
         assert budgets.pop(("FetchPush-v4", "300000", "1.0", critics)) == [4, 5, 6, 7, 8]
@@ -157,7 +162,8 @@ def test_the_fetch_suite_runs_ipg_her_with_no_flag_but_the_budget_and_evaluation
             assert budgets.pop(("FetchPush-v4", "200000", nu, critics)) == [4, 5, 6]
     for nu in ("0.5", "0.8"):
         assert budgets.pop(("FetchPush-v4", "200000", nu, "eq10")) == [4, 5, 6]
-    assert budgets == {("FetchSlide-v4", "1000000", "1.0", "2"): [4, 5, 6],
+    assert budgets == {("FetchSlide-v4", "1000000", "1.0", "2"): [7, 8, 9],
+                       ("FetchSlide-v4", "1000000", "1.0", "2_constlr"): [4, 5, 6],
                        ("FetchSlide-v4", "1000000", "1.0", "2_sigma1"): [1, 2, 3],
                        ("FetchPickAndPlace-v4", "500000", "1.0", "2_grasped"): [4, 5, 6],
                        ("FetchPickAndPlace-v4", "500000", "1.0", "2"): [4, 5, 6]}  # fmt: skip

@@ -192,3 +192,4 @@ def test_a_tasks_own_defaults_apply_where_no_flag_was_given(capsys):
     slide = parse("--env-id", "FetchSlide-v4")  # Push's, but narrow sigma and mu kept in bounds
     assert (slide.target_std, slide.action_l2, slide.bounds_loss) == ((0.3, 0.3, 0.3, 1.0), 0, 1)
     assert (slide.hidden, slide.normalization, slide.twin_critic) == (256, "paper", True)
+    assert slide.anneal_lr and not parse("--env-id", "FetchPush-v4").anneal_lr  # Slide's only

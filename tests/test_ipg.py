@@ -29,7 +29,7 @@ from common.normalizer import InputNormalizer
 
 def replay_of(states):
     """An ``ipg_update`` replay whose every batch holds ``states``."""
-    return lambda: itertools.repeat({"obs": states})
+    return lambda n: itertools.repeat({"obs": states})
 
 
 def test_nu_zero_without_cv_is_the_ppo_kl_update():
@@ -153,6 +153,19 @@ def test_smoke(tmp_path, env_id, flags):
     ckpt = torch.load(run_dir / "model.pt", weights_only=False)
     assert {"agent", "qf", "qf_target", "normalizer", "args", "format_version"} <= set(ckpt)
     assert_saved_policy_replays_last_evaluation(run_dir, env_id)
+
+
+def test_anneal_lr_takes_both_learning_rates_linearly_to_zero(tmp_path):
+    """--anneal-lr (Slide's default): at iteration i of N, lr = (1 - (i - 1) / N) lr_0, for the
+    policy's Adam (charts/learning_rate) and the critic's (its state in resume.pt at the end)."""
+    flags = "--total-timesteps 400 --critic-steps 2 --update-epochs 1 --hidden 16 --eval-freq 0"
+    flags += " --eval-episodes 1 --critic-learning-rate 2e-3 --resume-freq 400"
+    run_dir, tags = smoke_run("ipg_her.py", tmp_path, "FetchSlide-v4", *flags.split())
+    fracs = [1.0, 0.75, 0.5, 0.25]  # N = 400 / 100 = 4 iterations
+    logged = [value for _, value in tags["charts/learning_rate"]]
+    np.testing.assert_allclose(logged, [1e-3 * f for f in fracs], rtol=1e-6)
+    resume = torch.load(run_dir / "resume.pt", weights_only=False)
+    assert resume["q_optimizer"]["param_groups"][0]["lr"] == pytest.approx(2e-3 * fracs[-1])
 
 
 def test_replayed_transitions_never_cross_a_reset_and_keep_the_true_final_observation():
