@@ -14,10 +14,14 @@ Writing goes to a temporary file renamed over the old one: an interrupted save l
 previous file intact.
 """
 
+import contextlib
 import dataclasses
+import io
 import os
+import pickle
 import random
 import sys
+import zipfile
 
 import numpy as np
 import torch
@@ -27,6 +31,9 @@ SCRIPT = os.path.basename(sys.argv[0])  # the script running, e.g. ipg_her.py
 RESUME_FILE = "resume.pt"
 # may differ on --resume: how long, how often saved, evaluation workers, the run's label
 RESUMABLE_ARGS = ("resume", "resume_freq", "total_timesteps", "eval_workers", "exp_name")
+# what every resume.pt holds besides the script's parts (common/run.py writes and reads them)
+RESUME_FIELDS = ("script", "args", "rng", "scalars", "iteration", "global_step", "train_time",
+                 "last_eval", "last_save", "recent_success", "eval_seeds")  # fmt: skip
 
 
 class CheckpointError(ValueError):
@@ -62,14 +69,41 @@ def state(model: dict) -> dict:
     }
 
 
+def not_finite(value, name: str = "") -> list[str]:
+    """The names of the tensors and arrays in ``value`` (nested dicts) holding NaN or infinity."""
+    if isinstance(value, dict):
+        return [
+            bad for key, v in value.items() for bad in not_finite(v, f"{name}.{key}".strip("."))
+        ]
+    if torch.is_tensor(value) and value.is_floating_point():
+        return [] if torch.isfinite(value).all() else [name]
+    if isinstance(value, np.ndarray | float) and np.issubdtype(
+        np.asarray(value).dtype, np.floating
+    ):
+        return [] if np.isfinite(value).all() else [name]
+    return []
+
+
 def save(path: str, args, last_eval_seeds: list[int], **model) -> None:
     _write({"format_version": FORMAT_VERSION, "args": dict(vars(args)),
             "last_eval_seeds": list(last_eval_seeds), **state(model)}, path)  # fmt: skip
 
 
 def _write(content: dict, path: str) -> None:
-    tmp = f"{path}.tmp"
-    torch.save(plain(content), tmp)
+    """Serialise in memory, write a temporary file, rename it over ``path``. A failed write (a
+    full disk) removes the temporary file, keeps the old ``path`` and raises ``OSError`` with
+    the file's name."""
+    buffer, tmp = io.BytesIO(), f"{path}.tmp"
+    torch.save(plain(content), buffer)  # in memory: a full disk then fails as an OSError
+    try:
+        with open(tmp, "wb") as f:
+            f.write(buffer.getbuffer())
+    except BaseException as e:  # a full disk, Ctrl-C: no temporary file left behind
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        if isinstance(e, OSError):
+            raise OSError(e.errno, e.strerror, path) from e
+        raise
     os.replace(tmp, path)  # atomic on POSIX: readers see the old file or the new one
 
 
@@ -111,6 +145,9 @@ def load_resume_state(run_dir: str, args) -> dict:
         raise CheckpointError(f"no {RESUME_FILE} in {run_dir} (the run must be started with "
                               "--resume-freq for it to be written)")  # fmt: skip
     content = _read(path)
+    if missing := [key for key in RESUME_FIELDS if key not in content]:
+        what = "a model.pt, not a resume point" if "script" not in content else "an incomplete file"
+        raise CheckpointError(f"{path} lacks {', '.join(missing)}: {what}")
     # a flag added to the code since the run started: the run had its default
     saved = {f.name: f.default for f in dataclasses.fields(args)} | content["args"]
     if content["script"] != SCRIPT:
@@ -151,6 +188,9 @@ def load(path: str) -> dict:
     content = _read(path)
     if "agent" not in content or "normalizer" not in content:
         raise CheckpointError(f"{path} holds no policy: it is not a model.pt or a resume.pt")
+    if bad := not_finite({"agent": content["agent"], "normalizer": content["normalizer"]}):
+        raise CheckpointError(f"{path} holds NaN or infinite values ({', '.join(bad[:3])}): "
+                              "a run stopped by a NaN loss; use an earlier checkpoint")  # fmt: skip
     if "script" in content:  # a resume.pt: what a model.pt names, read from what it holds
         goals = "obs_rms" in content["normalizer"]
         content |= {"normalizer_class": "InputNormalizer" if goals else "RunningMeanStd",
@@ -158,17 +198,25 @@ def load(path: str) -> dict:
     return content
 
 
+def corrupt(path: str) -> str:
+    size = os.path.getsize(path)
+    return f"{path} is truncated or corrupt ({size:,} bytes), or not a checkpoint of these scripts"
+
+
 def _read(path: str) -> dict:
     """A file ``_write`` wrote, in this code's format, or a ``CheckpointError`` saying why not."""
     try:
         content = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # a pickle naming code to run, or not a torch file at all
-        reason = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise CheckpointError(
-            f"{path} was refused: it holds more than tensors and plain values, or is not a "
-            f"checkpoint of these scripts (files before format {FORMAT_VERSION} are refused "
-            f"too: retrain, or load them with the code that wrote them). {reason[:200]}"
+    except pickle.UnpicklingError as e:
+        if not zipfile.is_zipfile(path):  # not torch.save's zip: cut short, or something else
+            raise CheckpointError(corrupt(path)) from e
+        raise CheckpointError(  # a pickle naming code to run: never loaded
+            f"{path} was refused: it holds more than tensors and plain values (files before "
+            f"format {FORMAT_VERSION} are refused too: retrain, or load them with the code that "
+            "wrote them)"
         ) from e
+    except Exception as e:  # cut short by a full disk or a copy, or not a torch file at all
+        raise CheckpointError(corrupt(path)) from e
     if not isinstance(content, dict) or content.get("format_version") != FORMAT_VERSION:
         version = content.get("format_version") if isinstance(content, dict) else None
         raise CheckpointError(f"{path} has checkpoint format {version!r}; this code reads format "

@@ -25,7 +25,8 @@ import multiprocessing
 import os
 import signal
 import sys
-from concurrent.futures import Future, ProcessPoolExecutor
+import threading
+import time
 from dataclasses import dataclass
 from typing import Annotated
 
@@ -164,9 +165,30 @@ def load_policy(path: str, env_id: str | None = None) -> Policy:
     return Policy(content, env_id)
 
 
-def _worker_init() -> None:
+def _worker_init(parent: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the training process's to handle
     torch.set_num_threads(1)
+    threading.Thread(target=_exit_with, args=(parent,), daemon=True).start()
+
+
+def _exit_with(parent: int) -> None:
+    """End this worker once its training process is gone (killed with -9, nothing told us)."""
+    while os.getppid() == parent:
+        time.sleep(1.0)
+    os._exit(1)
+
+
+class Done:
+    """An evaluation run here and now (``workers=0``), read as a worker's result is."""
+
+    def __init__(self, value):
+        self.value = value
+
+    def ready(self) -> bool:
+        return True
+
+    def get(self):
+        return self.value
 
 
 class BackgroundEvaluator:
@@ -180,32 +202,35 @@ class BackgroundEvaluator:
     """
 
     def __init__(self, workers: int):
-        ctx = multiprocessing.get_context("spawn")  # no fork of a process running torch
-        self.pool = ProcessPoolExecutor(workers, ctx, _worker_init) if workers > 0 else None
-        self.pending = collections.deque()
+        self.pool, self.pending = None, collections.deque()
+        if workers > 0:  # spawned, not forked from a process running torch; Ctrl-C blocked in
+            ctx = multiprocessing.get_context("spawn")  # the worker from its first instruction
+            old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            try:
+                self.pool = ctx.Pool(workers, _worker_init, (os.getpid(),))
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
     def submit(self, step: int, evaluate, *args) -> None:
         args = copy.deepcopy(args)
-        if self.pool is None:
-            future = Future()
-            future.set_result(evaluate(*args))
-        else:
-            future = self.pool.submit(evaluate, *args)
-        self.pending.append((step, future))
+        result = self.pool.apply_async(evaluate, args) if self.pool else Done(evaluate(*args))
+        self.pending.append((step, result))
 
     def finished(self, wait: bool = False) -> list[tuple[int, object]]:
         done = []
-        while self.pending and (wait or self.pending[0][1].done()):
-            step, future = self.pending.popleft()
-            done.append((step, future.result()))
+        while self.pending and (wait or self.pending[0][1].ready()):
+            step, result = self.pending[0]
+            done.append((step, result.get()))  # Ctrl-C here leaves it pending: close() drops it
+            self.pending.popleft()
         return done
 
-    def close(self) -> None:
-        """Stop the worker, dropping evaluations not yet finished. With none pending (a finished
-        run) wait for it to exit: a pool still winding down races the interpreter's exit
-        handler, which on Python 3.11 can end a finished run with ``OSError: [Errno 9]``."""
+    def close(self, at_once: bool = False) -> None:
+        """Stop the worker: ``at_once`` (an interrupted run) or with evaluations pending, drop
+        them and end it now; else let it exit."""
         if self.pool is not None:
-            self.pool.shutdown(wait=not self.pending, cancel_futures=True)
+            self.pool.terminate() if at_once or self.pending else self.pool.close()
+            self.pool.join()
+            self.pool = None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -240,5 +265,14 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def stop(signum, frame):
+    raise KeyboardInterrupt(signum)  # kill ends an evaluation as Ctrl-C does
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    signal.signal(signal.SIGTERM, stop)
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt as e:  # one line, the shell's exit code: 130 (Ctrl-C), 143 (kill)
+        print("evaluation interrupted; nothing was written", file=sys.stderr)
+        sys.exit(128 + (e.args[0] if e.args else signal.SIGINT))

@@ -21,10 +21,13 @@ Evaluation runs the deterministic policy of a snapshot of ``model`` through
 model, in a background process (``--eval-workers 1``) or in this one (``0``).
 """
 
+import errno
+import fcntl
 import os
 import random
 import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from typing import NoReturn
@@ -68,6 +71,9 @@ class RunArgs:
     """go on with the run in this folder from its resume.pt (same flags; a larger budget extends)"""
 
 
+BAR = "{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]"  # the rate: ours, in the postfix
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM (``kill``), raised like Ctrl-C's KeyboardInterrupt so that a run ends cleanly."""
 
@@ -76,10 +82,48 @@ def raise_terminated(signum, frame) -> NoReturn:
     raise Terminated()
 
 
-def start_run(args) -> tuple[str, SummaryWriter]:
+def lock(run_dir: str):
+    """Hold ``run_dir/run.lock`` (with this pid) while the run lives: a second run of the same
+    folder (two ``--resume`` at once) is refused. The kernel frees it when the process dies."""
+    path = os.path.join(run_dir, "run.lock")
+    try:
+        handle = open(path, "a+")
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.seek(0)
+        cli.fail(f"{run_dir} is in use by a running process (pid {handle.read().strip() or '?'})")
+    except OSError as e:
+        cli.fail(f"cannot write in {run_dir}: {e.strerror}")
+    handle.truncate(0)
+    handle.write(f"{os.getpid()}\n")
+    handle.flush()
+    return handle
+
+
+def writer_for(run_dir: str, **kwargs) -> SummaryWriter:
+    """The run's TensorBoard writer, its first lines written now: a folder that cannot take them
+    (a full disk) is one error line, and the new event file is removed."""
+    before = set(os.listdir(run_dir))
+    try:
+        writer = SummaryWriter(run_dir, **kwargs)
+        writer.flush()
+        return writer
+    except OSError as e:
+        for name in set(os.listdir(run_dir)) - before:
+            os.remove(os.path.join(run_dir, name))
+        cli.fail(f"cannot write in {run_dir}: {e.strerror}")
+
+
+def quiet_writer_thread(hook) -> None:
+    """TensorBoard's writing thread raises a failed write (a full disk) twice: in its own thread
+    and in the next ``add_scalar``. The second ends the run with one line; the first is muted."""
+    if not issubclass(hook.exc_type, OSError):
+        threading.__excepthook__(hook)
+
+
+def start_run(args) -> str:
     """A new run folder ``{log_dir}/{env_id}__{exp_name}__{seed}__{unix time}`` (a suffix keeps
-    two runs started in the same second apart) and its writer, with the hyperparameters as a
-    text table, as CleanRL does."""
+    two runs started in the same second apart)."""
     run_name = f"{args.env_id}__{args.exp_name}__{args.seed}__{int(time.time())}"
     run_dir = os.path.join(args.log_dir, run_name)
     for suffix in range(1, 1000):
@@ -91,30 +135,27 @@ def start_run(args) -> tuple[str, SummaryWriter]:
         except OSError as e:
             cli.fail(f"cannot create the run folder in --log-dir {args.log_dir!r}: {e.strerror}")
     print(f"run folder: {run_dir}", flush=True)
-    writer = SummaryWriter(run_dir)
-    table = "\n".join(f"|{key}|{value}|" for key, value in vars(args).items())
-    writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n{table}")
-    return run_dir, writer
+    return run_dir
 
 
 class Run:
     def __init__(self, args):
-        self.args, self.resumed = args, None
+        self.args, self.resumed, self.stop_signal = args, None, None
         if args.resume:  # TensorBoard drops what the interrupted run logged after its resume point
             try:
                 self.resumed = checkpoint.load_resume_state(args.resume, args)
             except checkpoint.CheckpointError as e:
                 cli.fail(str(e))
-            step = self.resumed["global_step"]
-            self.dir, self.writer = args.resume, SummaryWriter(args.resume, purge_step=step + 1)
-            print(f"resuming run folder: {self.dir} after step {step:,}", flush=True)
+            self.dir, self.lock = args.resume, lock(args.resume)
+            self.hold_signals()
         else:
-            self.dir, self.writer = start_run(args)
+            self.hold_signals()
+            self.dir = start_run(args)
+            self.lock = lock(self.dir)
         batch, steps = args.num_envs * args.num_steps, args.total_timesteps
         if steps % batch:  # training runs in whole batches
             print(f"--total-timesteps {steps:,}: {steps // batch * batch:,} steps, whole batches "
                   f"of {batch:,} (num_envs * num_steps)", flush=True)  # fmt: skip
-        signal.signal(signal.SIGTERM, raise_terminated)  # kill ends a run as Ctrl-C does
         # seeding: one independent stream per use (common/seeding.py)
         self.streams = seeding.streams(args.seed, args.num_envs)
         random.seed(self.streams.global_seed)
@@ -128,6 +169,18 @@ class Run:
         self.eval_seeds, self.eval_returns, self.eval_success = [], np.zeros(0), np.zeros(0)
         self.recent_success, self.latest, self.latest_eval, self.scalars = [], "", "no eval yet", {}
         self.first_iteration, self.last_resume, self.start_time = 1, 0, time.time()
+        self.model_step, self.last_line = None, time.time()  # model.pt's step, once written
+
+    def hold_signals(self) -> None:
+        """From the moment the run folder exists until the run is under way (``with run:``), a
+        signal is held, then stops the run as mid-run: one clean stop, whenever it comes."""
+        self.old_handlers = {
+            s: signal.signal(s, self.hold) for s in (signal.SIGINT, signal.SIGTERM)
+        }
+        threading.excepthook = quiet_writer_thread
+
+    def hold(self, signum, frame) -> None:
+        self.stop_signal = signum
 
     def start(self, envs, model: dict, training: dict, **scalars):
         """Register what is saved, restore it all on ``--resume``, reset the environments.
@@ -136,14 +189,17 @@ class Run:
         streams = dict(eval_rng=self.streams.eval_rng, diagnostics_rng=self.diagnostics_rng,
                        diagnostics_generator=self.diagnostics_generator)  # fmt: skip
         self.parts = model | training | streams
-        self.evaluator = BackgroundEvaluator(self.args.eval_workers)
-        self.progress = tqdm(total=self.args.total_timesteps, unit=" steps", unit_scale=True,
-                             disable=not sys.stdout.isatty(), dynamic_ncols=True)  # fmt: skip
         reset_seeds = self.streams.env_seeds
         if self.resumed:
-            r = self.resumed
-            for name, part in self.parts.items():
-                checkpoint.restore(part, r[name])
+            r, path = self.resumed, os.path.join(self.dir, checkpoint.RESUME_FILE)
+            if missing := [name for name in self.parts if name not in r]:
+                cli.fail(f"{path} lacks {', '.join(missing)}: not a resume point of this script")
+            try:
+                for name, part in self.parts.items():
+                    checkpoint.restore(part, r[name])
+            except (KeyError, ValueError, RuntimeError) as e:  # shapes or fields of another run
+                cli.fail(f"{path} does not fit this run ({type(e).__name__}: {str(e)[:200]})")
+            for part in self.parts.values():
                 if hasattr(part, "end_episodes"):  # replay: the envs restart with new episodes
                     part.end_episodes()
             checkpoint.set_rng_states(r["rng"])
@@ -152,10 +208,19 @@ class Run:
             self.last_eval, self.last_save = r["last_eval"], r["last_save"]
             self.eval_seeds, self.recent_success = r["eval_seeds"], r["recent_success"]
             self.first_iteration, self.last_resume = r["iteration"] + 1, self.global_step
-            self.progress.update(self.global_step)
             reset_seeds = seeding.resume_env_seeds(
                 self.args.seed, self.args.num_envs, r["global_step"]
             )
+            print(f"resuming run folder: {self.dir} after step {self.global_step:,}", flush=True)
+            self.writer = writer_for(self.dir, purge_step=self.global_step + 1)
+        else:  # the hyperparameters as a text table, as CleanRL does
+            self.writer = writer_for(self.dir)
+            table = "\n".join(f"|{key}|{value}|" for key, value in vars(self.args).items())
+            self.writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n{table}")
+        self.evaluator = BackgroundEvaluator(self.args.eval_workers)
+        self.progress = tqdm(total=self.args.total_timesteps, initial=self.global_step,
+                             unit=" steps", disable=not sys.stdout.isatty(), dynamic_ncols=True,
+                             bar_format=BAR)  # fmt: skip
         raw_obs, _ = envs.reset(seed=reset_seeds)
         return raw_obs, *self.scalars.values()
 
@@ -195,11 +260,12 @@ class Run:
         evaluation schedule, saving, the resume point and the live line."""
         if not all(np.isfinite(v) for v in stats.values()):
             raise FloatingPointError(
-                f"a loss became NaN or infinite at global step {self.global_step}: {stats}"
+                f"a loss became NaN or infinite at global step {self.global_step}: "
+                + ", ".join(f"{k}={v}" for k, v in stats.items() if not np.isfinite(v))
             )
         self.train_time += time.time() - self.t0
         self.scalars |= scalars
-        sps = int(self.global_step / self.train_time)
+        sps = int(self.global_step / self.train_time)  # steps per second of training time
         self.log(stats | {"charts/SPS": sps})
         args, step, last = self.args, self.global_step, self.iteration == self.num_iterations
         resume_due = args.resume_freq > 0 and (step - self.last_resume >= args.resume_freq or last)
@@ -223,7 +289,7 @@ class Run:
                 self.writer.add_scalar("eval/success_rate", success.mean(), eval_step)
                 message += f" eval_success={success.mean():.2f}"
                 self.latest_eval = f"eval success {success.mean():.2f} @ {eval_step:,}"
-            self.print(f"{message} SPS={sps}")
+            self.print(f"{message} steps/s={sps}")
         if args.save_model and args.save_freq and step - self.last_save >= args.save_freq:
             self.last_save = step
             self.save()
@@ -235,40 +301,74 @@ class Run:
                 recent_success=self.recent_success, eval_seeds=self.eval_seeds,
             )  # fmt: skip
             self.last_resume = step  # once written
+        live = f"{sps:,} steps/s | {self.latest} | {self.latest_eval}"  # training time's rate
         self.progress.update(step - self.progress.n)
-        self.progress.set_postfix_str(f"{self.latest} | {self.latest_eval}", refresh=False)
+        self.progress.set_postfix_str(live, refresh=False)
+        if self.progress.disable and time.time() - self.last_line >= 30:  # piped: a line a while
+            self.last_line = time.time()
+            self.print(f"step {step:,} of {args.total_timesteps:,}: {live}")
 
-    def save(self) -> None:
+    def save(self) -> str:
+        """``model.pt``, unless its weights are not finite: a NaN never replaces a good model."""
         path = os.path.join(self.dir, "model.pt")
+        if bad := checkpoint.not_finite(checkpoint.state(self.model)):
+            raise FloatingPointError(f"the model holds NaN or infinite values ({bad[0]}, ...)")
         checkpoint.save(path, self.args, self.eval_seeds, **self.model)
+        self.model_step = self.global_step
         return path
 
     def print(self, message: str, file=None) -> None:
-        """A line above the live one."""
-        tqdm.write(message, file=file or sys.stdout)
+        """A line above the live one; a closed pipe (``| tee log`` ended) costs nothing else."""
+        say(message, file or sys.stdout, self.progress)
 
     def __enter__(self):
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C and kill end the run
+        signal.signal(signal.SIGTERM, raise_terminated)  # cleanly from here on, through __exit__
+        if self.stop_signal is not None:  # held since the run folder appeared: stop as mid-run
+            error = Terminated() if self.stop_signal == signal.SIGTERM else KeyboardInterrupt()
+            self.__exit__(type(error), error, None)
         return self
 
     def __exit__(self, kind, error, traceback) -> NoReturn:
-        """Ctrl-C or kill: logs kept, exit 130 or 143; a NaN loss: one error line, exit 1.
-        Either way the model is saved (``--save-model``) and everything is closed."""
-        code = 0 if error is None else None  # None: a bug, whose traceback follows the cleanup
+        """Ctrl-C or kill: logs kept, exit 130 or 143; a NaN loss or a full disk: one error line,
+        exit 1. Either way the model is saved (``--save-model``, if finite), everything is closed,
+        and the last line names the checkpoints on disk."""
+        for s in (signal.SIGINT, signal.SIGTERM):  # a second Ctrl-C cannot cut the clean-up short
+            signal.signal(s, signal.SIG_IGN)
+        self.progress.close()  # the bar stays above the closing lines
+        self.progress.disable = True
+        code, lines = (0 if error is None else None), []  # None: a bug, traceback after cleanup
         if isinstance(error, KeyboardInterrupt):
-            message = f"interrupted at step {self.global_step:,}; logs are kept in {self.dir}"
-            if self.last_resume:  # what --resume takes back: the last resume point, not this step
-                message += f"; --resume {self.dir} goes on from step {self.last_resume:,}"
-            self.print(message, file=sys.stderr)
+            lines.append(f"interrupted at step {self.global_step:,}; logs are kept in {self.dir}")
             code = 128 + (signal.SIGTERM if isinstance(error, Terminated) else signal.SIGINT)
         elif isinstance(error, FloatingPointError):
-            self.print(f"error: {error}", file=sys.stderr)
+            lines.append(f"error: {error}")
             code = 1
-        if self.args.save_model:
-            self.print(f"model saved to {self.save()}")
-        self.evaluator.close()
+        elif isinstance(error, OSError) and error.errno in (
+            errno.ENOSPC,
+            errno.EDQUOT,
+            errno.EFBIG,
+        ):
+            lines.append(f"error: {disk_error(error, self.dir)}")
+            code = 1
+        if self.args.save_model and not isinstance(error, FloatingPointError):
+            try:
+                lines.append(f"model saved to {self.save()}")
+            except (OSError, FloatingPointError) as e:
+                lines.append(f"error: model.pt not written: {disk_error(e, self.dir)}")
+                code = code or 1
+        self.evaluator.close(at_once=error is not None)
         self.envs.close()
-        self.writer.close()
-        self.progress.close()
+        try:
+            self.writer.close()
+        except OSError as e:  # the event file's last lines, on a full disk
+            lines.append(f"error: {disk_error(e, self.dir)}")
+        for line in lines:
+            say(line, sys.stderr if line.startswith(("error", "interrupted")) else sys.stdout)
+        for s, handler in self.old_handlers.items():
+            signal.signal(s, handler)
+        threading.excepthook = threading.__excepthook__
+        self.lock.close()
         if code is None:
             return False
         seconds = time.time() - self.start_time
@@ -277,5 +377,36 @@ class Run:
             summary += f"; last evaluation: return {self.eval_returns.mean():.1f}"
         if len(self.eval_success):
             summary += f", success {self.eval_success.mean():.2f}"
-        print(summary, flush=True)
+        say(summary + self.checkpoints(), sys.stdout)
         sys.exit(code)
+
+    def checkpoints(self) -> str:
+        """What is on disk to go on from: the last resume point and the model, with their steps."""
+        saved = []
+        if self.last_resume:  # what --resume takes back: the last resume point, not this step
+            saved.append(f"--resume {self.dir} goes on from step {self.last_resume:,}")
+        if self.model_step is not None:
+            saved.append(f"model.pt of step {self.model_step:,} in {self.dir}")
+        return "; " + "; ".join(saved) if saved else ""
+
+
+def disk_error(error: Exception, run_dir: str) -> str:
+    """One line for a failed write: which file, and why (the disk is full, ...)."""
+    if not isinstance(error, OSError):
+        return str(error)
+    name = error.filename or f"a file in {run_dir}"
+    full = " (the disk is full)" if error.errno in (errno.ENOSPC, errno.EDQUOT) else ""
+    return f"could not write {name}: {error.strerror or error}{full}"
+
+
+def say(message: str, file, progress=None) -> None:
+    """Print a line (above the live bar if one is drawn); a closed pipe (Ctrl-C on
+    ``... | tee log`` ends ``tee`` too) sends the rest of the output to /dev/null instead of
+    stopping the clean-up."""
+    try:
+        if progress is not None and not progress.disable:
+            tqdm.write(message, file=file)
+        else:
+            print(message, file=file, flush=True)
+    except OSError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), file.fileno())

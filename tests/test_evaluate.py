@@ -119,14 +119,20 @@ def test_an_interrupted_save_leaves_the_previous_checkpoint_loadable(tmp_path, m
     model = dict(agent=agent, normalizer=RunningMeanStd((2,)))
     checkpoint.save(path, args, [1, 2], **model)
 
-    def killed_half_way(state, file):
-        with open(file, "wb") as f:
-            f.write(b"half a checkpoint")
-        raise KeyboardInterrupt
+    real_open = open
 
-    monkeypatch.setattr(torch, "save", killed_half_way)
+    def killed_half_way(file, mode="r", *args, **kwargs):
+        if "w" in mode:
+            with real_open(file, mode) as f:
+                f.write(b"half a checkpoint")
+            raise KeyboardInterrupt
+        return real_open(file, mode, *args, **kwargs)
+
+    monkeypatch.setattr("builtins.open", killed_half_way)
     with pytest.raises(KeyboardInterrupt):
         checkpoint.save(path, args, [3], **model)
+    monkeypatch.undo()
+    assert os.listdir(tmp_path) == ["model.pt"], "the half-written temporary file is left"
     state = checkpoint.load(path)
     assert state["last_eval_seeds"] == [1, 2]
     torch.testing.assert_close(state["agent"]["weight"], agent.weight.detach())
@@ -225,14 +231,15 @@ def test_resume_accepts_flags_added_since_at_their_defaults_and_refuses_a_jumpin
     """A resume point written before a flag existed: the run had the flag's default, so the
     same command resumes it, and only a non-default value is refused. A longer budget is refused
     under --anneal-lr (Q-Prop's, PPO-KL's), whose schedule it would move."""
-    checkpoint.save_resume_state(str(tmp_path), ipg_her.Args(), global_step=100)
+    fields = dict.fromkeys(checkpoint.RESUME_FIELDS[2:], 0)  # beside the script and its args
+    checkpoint.save_resume_state(str(tmp_path), ipg_her.Args(), **fields | {"global_step": 100})
     state = torch.load(tmp_path / "resume.pt", weights_only=False)
     del state["args"]["q_bar"]  # as written by code before --q-bar
     torch.save(state, tmp_path / "resume.pt")
     assert checkpoint.load_resume_state(str(tmp_path), ipg_her.Args())["global_step"] == 100
     with pytest.raises(checkpoint.CheckpointError, match="--q-bar 'mean' \\(now 'sample'\\)"):
         checkpoint.load_resume_state(str(tmp_path), ipg_her.Args(q_bar="sample"))
-    checkpoint.save_resume_state(str(tmp_path), qprop_ppo.Args(anneal_lr=True))
+    checkpoint.save_resume_state(str(tmp_path), qprop_ppo.Args(anneal_lr=True), **fields)
     checkpoint.load_resume_state(str(tmp_path), qprop_ppo.Args(anneal_lr=True, resume_freq=9))
     checkpoint.load_resume_state(str(tmp_path), qprop_ppo.Args(anneal_lr=True, exp_name="renamed"))
     with pytest.raises(checkpoint.CheckpointError, match="--anneal-lr"):

@@ -1,0 +1,272 @@
+"""Nothing lost, nothing silent: whatever stops a run (a NaN, Ctrl-C or kill at any moment, a
+pipe closed under it, kill -9, a full disk, a second run of its folder, a broken checkpoint), its
+last good checkpoint survives, its last line names it, no process outlives it, and bad input is
+one ``error:`` line with nothing written."""
+
+import errno
+import fcntl
+import os
+import resource
+import runpy
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import torch
+from conftest import ROOT, assert_clean_error, run_dirs, run_script
+
+from common import checkpoint, evaluate
+
+TINY = ("--env-id", "FetchReach-v4", "--total-timesteps", "200", "--eval-freq", "0",
+        "--eval-episodes", "2")  # fmt: skip
+ENV = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}
+
+
+def start(log_dir, *flags, **popen):
+    """``ipg_her.py`` in the background, its output piped; waits for its ``run folder:`` line."""
+    cmd = [sys.executable, str(ROOT / "ipg_her.py"), "--log-dir", str(log_dir), *flags]
+    popen = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True} | popen
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, **popen)
+    first = proc.stdout.readline()
+    assert first.startswith("run folder: "), first + proc.communicate()[1]
+    return proc, first.removeprefix("run folder: ").strip()
+
+
+def children(pid: int) -> set[int]:
+    """Every descendant of ``pid`` (Linux /proc)."""
+    found = set()
+    for task in os.listdir(f"/proc/{pid}/task"):
+        with open(f"/proc/{pid}/task/{task}/children") as f:
+            found |= {int(c) for c in f.read().split()}
+    return found | {g for c in found if os.path.exists(f"/proc/{c}") for g in children(c)}
+
+
+def alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[1][0] != "Z"  # a zombie has ended
+    except FileNotFoundError:
+        return False
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    """A tiny finished run with a model.pt and a resume.pt."""
+    log_dir = tmp_path_factory.mktemp("finished")
+    result = run_script("ipg_her.py", log_dir, *TINY, "--save-model", "--resume-freq", "100")
+    assert result.returncode == 0, result.stderr
+    return run_dirs(log_dir)[0]
+
+
+def test_a_nan_stop_keeps_the_good_model_and_evaluate_refuses_a_nan_one(
+    monkeypatch, tmp_path, capsys
+):
+    """A NaN injected into the weights at the third update: the model.pt saved at step 256
+    stays as it was, the run exits 1 with one error line, its last line names that model; a
+    model holding NaN is refused by ``common.evaluate`` with one line."""
+    steps, original = [0], torch.optim.Adam.step
+
+    def poisoned(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        steps[0] += 1
+        if steps[0] == 5:  # iterations 1-2 take two Adam steps each
+            for group in self.param_groups:
+                for p in group["params"]:
+                    p.data.fill_(float("nan"))
+        return out
+
+    argv = ["ppo_kl.py", "--log-dir", str(tmp_path), "--num-envs", "2", "--num-steps", "64",
+            "--total-timesteps", "1024", "--num-minibatches", "2", "--update-epochs", "1",
+            "--eval-freq", "0", "--eval-workers", "0", "--save-model",
+            "--save-freq", "256"]  # fmt: skip
+    monkeypatch.setattr(torch.optim.Adam, "step", poisoned)
+    monkeypatch.setattr(sys, "argv", argv)
+    saved = {}
+    real_save = checkpoint.save
+
+    def recording_save(path, *args, **kwargs):
+        real_save(path, *args, **kwargs)
+        saved.setdefault(path, open(path, "rb").read())  # the first, good one
+
+    monkeypatch.setattr(checkpoint, "save", recording_save)
+    with pytest.raises(SystemExit) as stop:
+        runpy.run_path(str(ROOT / "ppo_kl.py"), run_name="__main__")
+    assert stop.value.code == 1
+    (path,) = saved
+    assert open(path, "rb").read() == saved[path], "the good model.pt was overwritten"
+    assert checkpoint.load(path)["agent"]  # finite, loads
+
+    bad = torch.load(path, weights_only=True)
+    bad["agent"]["actor_logstd"].fill_(float("nan"))
+    torch.save(bad, tmp_path / "nan.pt")
+    with pytest.raises(SystemExit) as refused:
+        evaluate.main([str(tmp_path / "nan.pt"), "--seed", "1", "--episodes", "1"])
+    assert refused.value.code == 2
+    assert "NaN or infinite values (agent.actor_logstd)" in capsys.readouterr().err
+
+
+def test_the_last_line_of_a_nan_stop_names_the_good_model(tmp_path):
+    """The same stop seen from outside: one error line, the last line names model.pt's step."""
+    result = run_script("qprop_ppo.py", tmp_path, "--env-id", "Hopper-v5",
+                        "--critic-learning-rate", "1e8", "--num-steps", "128", "--save-model",
+                        "--save-freq", "512", "--resume-freq", "512", "--total-timesteps",
+                        "20480", "--eval-freq", "0")  # fmt: skip
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert_clean_error(result, "NaN or infinite")
+    last = result.stdout.strip().splitlines()[-1]
+    assert last.startswith("stopped: ") and "model.pt of step " in last, last
+    (run_dir,) = run_dirs(tmp_path)
+    content = checkpoint.load(str(run_dir / "model.pt"))
+    assert not checkpoint.not_finite(content["agent"])
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_a_signal_right_after_the_run_folder_is_a_clean_stop(tmp_path, sig, code):
+    proc, run_dir = start(tmp_path, *TINY)
+    proc.send_signal(sig)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == code, err
+    assert "Traceback" not in err and err.startswith("interrupted at step 0"), err
+    assert out.strip().splitlines()[-1].startswith("stopped: 0 steps"), out
+
+
+def test_kill_9_leaves_no_process_behind(tmp_path):
+    """The evaluation worker (and what multiprocessing started beside it) ends with its run,
+    even in the middle of a long evaluation (3,000 episodes: minutes)."""
+    proc, _ = start(tmp_path, "--env-id", "FetchReach-v4", "--total-timesteps", "1000000",
+                    "--eval-freq", "100", "--eval-episodes", "3000")  # fmt: skip
+    deadline = time.time() + 60
+    while not (kids := children(proc.pid)) and time.time() < deadline:
+        time.sleep(0.5)
+    assert kids, "no evaluation worker started"
+    time.sleep(10)  # the worker has imported torch and is evaluating step 100
+    kids = children(proc.pid)
+    proc.kill()
+    proc.wait()
+    deadline = time.time() + 15
+    while any(alive(k) for k in kids) and time.time() < deadline:
+        time.sleep(0.5)
+    left = [k for k in kids if alive(k)]
+    for k in left:
+        os.kill(k, signal.SIGKILL)
+    assert not left, f"{len(left)} process(es) outlived their run"
+
+
+def test_a_pipe_closed_by_ctrl_c_costs_no_checkpoint(tmp_path):
+    """``... --save-model 2>&1 | tee log`` and Ctrl-C: tee dies too, the run's output goes
+    nowhere, yet the model is saved and the exit code is Ctrl-C's."""
+    proc, run_dir = start(tmp_path, "--env-id", "FetchReach-v4", "--total-timesteps",
+                          "1000000", "--eval-freq", "200", "--save-model",
+                          stderr=subprocess.STDOUT)  # fmt: skip
+    while "evaluation of step" not in proc.stdout.readline():
+        pass
+    proc.stdout.close()  # tee is gone
+    proc.send_signal(signal.SIGINT)
+    assert proc.wait(timeout=60) == 130
+    assert checkpoint.load(os.path.join(run_dir, "model.pt"))["agent"]
+
+
+def test_a_signal_during_the_last_evaluation_stops_at_once(tmp_path):
+    """The final evaluation (a long one here) is dropped, not waited for."""
+    proc, _ = start(tmp_path, "--env-id", "FetchReach-v4", "--total-timesteps", "200",
+                    "--eval-freq", "0", "--eval-episodes", "3000")  # fmt: skip
+    time.sleep(15)  # training's 200 steps are done; the evaluation of 150,000 steps is not
+    assert proc.poll() is None
+    sent = time.time()
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143 and "Traceback" not in err, err
+    assert time.time() - sent < 5, f"took {time.time() - sent:.0f} s to stop"
+
+
+def test_a_second_run_of_a_folder_in_use_is_refused(finished_run):
+    with open(finished_run / "run.lock", "a+") as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)  # as a live run holds it
+        before = sorted(os.listdir(finished_run))
+        result = run_script("ipg_her.py", finished_run.parent, *TINY, "--save-model",
+                            "--resume-freq", "100", "--resume", str(finished_run))  # fmt: skip
+    assert_clean_error(result, "is in use by a running process")
+    assert sorted(os.listdir(finished_run)) == before
+
+
+@pytest.mark.parametrize("damage", ["a model.pt", "no rng", "truncated"])
+def test_a_broken_resume_file_is_one_line_and_writes_nothing(finished_run, tmp_path, damage):
+    run_dir = tmp_path / "run"
+    shutil.copytree(finished_run, run_dir)
+    resume = run_dir / "resume.pt"
+    if damage == "a model.pt":
+        shutil.copy(run_dir / "model.pt", resume)
+    elif damage == "no rng":
+        content = torch.load(resume, weights_only=True)
+        del content["rng"]
+        torch.save(content, resume)
+    else:
+        os.truncate(resume, 1000)
+    before = sorted(os.listdir(run_dir))
+    result = run_script("ipg_her.py", tmp_path, *TINY, "--save-model", "--resume-freq", "100",
+                        "--resume", str(run_dir))  # fmt: skip
+    needle = {"a model.pt": "a model.pt, not a resume point", "no rng": "lacks rng",
+              "truncated": "is truncated or corrupt (1,000 bytes)"}[damage]  # fmt: skip
+    assert_clean_error(result, str(resume), needle)
+    assert sorted(os.listdir(run_dir)) == before
+
+
+def test_a_failed_write_keeps_the_old_file_and_removes_its_temporary(monkeypatch, tmp_path):
+    path = tmp_path / "resume.pt"
+    checkpoint._write({"format_version": checkpoint.FORMAT_VERSION, "x": 1}, str(path))
+    real_open = open
+
+    def full_disk(name, mode="r", *args, **kwargs):
+        f = real_open(name, mode, *args, **kwargs)
+        if "w" in mode:
+            f.close()
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return f
+
+    monkeypatch.setattr("builtins.open", full_disk)
+    with pytest.raises(OSError) as failed:
+        checkpoint._write({"format_version": checkpoint.FORMAT_VERSION, "x": 2}, str(path))
+    monkeypatch.undo()
+    assert failed.value.errno == errno.ENOSPC and failed.value.filename == str(path)
+    assert os.listdir(tmp_path) == ["resume.pt"]
+    assert checkpoint._read(str(path))["x"] == 1
+    from common.run import disk_error
+
+    assert disk_error(failed.value, str(tmp_path)).endswith("(the disk is full)")
+
+
+def test_a_run_out_of_disk_stops_in_one_line_and_keeps_its_resume_point(tmp_path):
+    """Files capped at 400 kB (RLIMIT_FSIZE: writes beyond fail as on a full disk): the replay
+    buffer outgrows it, the resume point that no longer fits fails, the one before stays."""
+    limit = 400_000
+
+    def cap():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    result = subprocess.run(
+        [sys.executable, str(ROOT / "ipg_her.py"), "--log-dir", str(tmp_path), "--env-id",
+         "FetchReach-v4", "--total-timesteps", "30000", "--eval-freq", "0", "--eval-episodes",
+         "2", "--resume-freq", "500"], cwd=ROOT, env=ENV, capture_output=True, text=True,
+        preexec_fn=cap, timeout=300,
+    )  # fmt: skip
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert_clean_error(result, "could not write", "resume.pt")
+    (run_dir,) = run_dirs(tmp_path)
+    assert not [f for f in os.listdir(run_dir) if f.endswith(".tmp")]
+    last = result.stdout.strip().splitlines()[-1]
+    step = int(last.split("goes on from step ")[1].replace(",", ""))
+    assert checkpoint._read(str(run_dir / "resume.pt"))["global_step"] == step
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_an_interrupted_evaluation_is_one_line(finished_run, sig, code):
+    cmd = [sys.executable, "-m", "common.evaluate", str(finished_run), "--episodes", "5000",
+           "--seed", "1"]  # fmt: skip
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, stderr=subprocess.PIPE, text=True)
+    time.sleep(12)  # imported, evaluating 5,000 episodes
+    proc.send_signal(sig)
+    err = proc.communicate(timeout=60)[1]
+    assert proc.returncode == code and err == "evaluation interrupted; nothing was written\n", err
