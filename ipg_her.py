@@ -143,8 +143,7 @@ class Args(RunArgs):
 def check_args(args: Args, argv: list[str]) -> None:
     """Bad input fails here, before anything runs (the shared checks: ``common/cli.py``)."""
     goal_task = cli.check_common(args)
-    cli.check_critic(args)
-    cli.check_her(args, argv, goal_task)  # nu, HER's flags, and tasks HER cannot serve
+    cli.check_her(args, argv, goal_task)  # nu, ignored flags, the critic's, HER's, grasped starts
 
 
 # ENV SETUP
@@ -358,7 +357,7 @@ def sigma_rule(alpha, entropy: float, log_std: np.ndarray, target_std):
 
 
 if __name__ == "__main__":
-    args = cli.parse_args(Args, task_defaults=TASK_DEFAULTS)
+    args = cli.parse_args(Args, task_defaults=TASK_DEFAULTS, ignored=cli.ipg_ignored)
     check_args(args, sys.argv[1:])
     batch_size = args.num_envs * args.num_steps
     num_iterations = args.total_timesteps // batch_size
@@ -415,8 +414,9 @@ if __name__ == "__main__":
                 reward_scale = 1.0 / reward_scaler.std()
 
             # ALGO LOGIC: the critic first (eq. 6-7, Q-Prop's Algorithm 1), so that the control
-            # variate and the critic's term in the update see the new data
-            learning = global_step >= args.learning_starts and rb.num_sampleable() > 0
+            # variate and the critic's term see the new data; at nu = 0 without them, no critic
+            learning = (args.nu > 0 or args.use_cv) and global_step >= args.learning_starts
+            learning = learning and rb.num_sampleable() > 0
             if learning and args.critic_steps > 0:
                 target_range = (q_range[0] * reward_scale, 0.0) if q_range else None  # clipped
                 for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size,

@@ -14,6 +14,7 @@ and adds back its expectation analytically, so the gradient stays unbiased:
 """
 
 import copy
+import sys
 from dataclasses import dataclass
 from typing import Literal
 
@@ -105,12 +106,11 @@ class Args(RunArgs):
     """two critics, the target the smaller of their Q_w' (TD3's clipped double Q)"""
 
 
-def check_args(args: Args) -> None:
+def check_args(args: Args, argv: list[str]) -> None:
     """Bad input fails here, before anything runs (the shared checks: ``common/cli.py``)."""
     cli.check_common(args)
+    cli.refuse_ignored(argv, cli.qprop_ignored(args))  # e.g. the critic's with --eta-mode none
     cli.check_critic(args)
-    if args.twin_critic and args.eta_mode == "none":
-        cli.fail("--twin-critic would be ignored (--eta-mode none trains no critic): leave it out")
 
 
 # ENV SETUP
@@ -319,7 +319,7 @@ def qprop_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float,
 
 if __name__ == "__main__":
     args = cli.parse_args(Args)
-    check_args(args)
+    check_args(args, sys.argv[1:])
     batch_size = args.num_envs * args.num_steps
     num_iterations = args.total_timesteps // batch_size
     run = Run(args)  # TRY NOT TO MODIFY: run folder, TensorBoard, seeding (common/run.py)

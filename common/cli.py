@@ -6,11 +6,15 @@ folder exists). A check either returns or exits through ``fail``; it never chang
 """
 
 import contextlib
+import dataclasses
 import difflib
 import io
+import math
 import os
 import re
 import sys
+import warnings
+from collections.abc import Callable
 from typing import NoReturn, TypeVar
 
 import gymnasium as gym
@@ -47,35 +51,69 @@ def fail(message: str) -> NoReturn:
 
 
 def parse_args(args_class: type[A], argv: list[str] | None = None, prog: str | None = None,
-               task_defaults: dict | None = None) -> A:  # fmt: skip
+               task_defaults: dict | None = None,
+               ignored: Callable[[A], dict[str, str]] | None = None) -> A:  # fmt: skip
     """``tyro.cli``, with a parse error reduced to one line (tyro draws a box). ``task_defaults``
-    ``{env_id: {field: value}}``: the task's own defaults, for the fields not given in ``argv``;
+    ``{env_id: {field: value}}``: the task's own defaults, for the fields not given in ``argv``
+    (in any spelling) nor ``ignored(args)`` (``{flag: why}``, the flags the run would ignore);
     one line says which were taken."""
     captured, argv = io.StringIO(), sys.argv[1:] if argv is None else argv
     try:
         with contextlib.redirect_stderr(captured):
             args = tyro.cli(args_class, args=argv, prog=prog)
-        given = {re.sub(r"^--no-", "--", a.split("=")[0]) for a in argv}  # --no-x gives x
-        own = {k: v for k, v in (task_defaults or {}).get(args.env_id, {}).items()
-               if flag(k) not in given}  # fmt: skip
-        for name, value in own.items():
-            setattr(args, name, value)
-        if own:
-            typed = {k: " ".join(map(str, np.atleast_1d(v))) for k, v in own.items()}  # tuples too
-            spelled = [flag(k) if v is True else f"{flag(k)} {typed[k]}" for k, v in own.items()]
-            print(f"{args.env_id}'s own defaults: {', '.join(spelled)}", flush=True)  # as typed
-        return args
     except SystemExit as e:
         if e.code:
-            text = " ".join(re.sub(r"[│╭╮╰╯─]|-{3,}", " ", captured.getvalue()).split())
-            if "Unrecognized options:" in text:  # tyro's headings and each guess's help: one line
-                rest = text.split("Unrecognized options:", 1)[1]
-                given = re.split(r" (?:Perhaps|Arguments similar|For full)", rest, maxsplit=1)[0]
-                guesses = re.findall(r"(?:meant|similar to --[\w-]+): (--[\w-]+)", rest)
-                guess = f"; did you mean {' or '.join(guesses)}?" if guesses else ""
-                fail(f"unrecognized option {given.strip()}{guess} (--help lists them)")
-            fail(text)
+            fail(parse_error(captured.getvalue()))
         raise
+    skip = {flag(name) for name in given(argv)} | set(ignored(args) if ignored else ())
+    own = {k: v for k, v in (task_defaults or {}).get(getattr(args, "env_id", None), {}).items()
+           if flag(k) not in skip}  # fmt: skip
+    for name, value in own.items():
+        setattr(args, name, value)
+    if own:
+        typed = {k: " ".join(map(str, np.atleast_1d(v))) for k, v in own.items()}  # tuples too
+        spelled = [flag(k) if v is True else f"{flag(k)} {typed[k]}" for k, v in own.items()]
+        print(f"{args.env_id}'s own defaults: {', '.join(spelled)}", flush=True)  # as typed
+    return args
+
+
+EXPECTS = {
+    "INT": "an integer",
+    "FLOAT": "a number",
+    "{None}|FLOAT": "a number or None",
+    "{None}|FLOAT|{[FLOAT [FLOAT ...]]}": "None, a number or several",
+}  # tyro's metavars
+
+
+def parse_error(box: str) -> str:
+    """tyro's error box as one line: what the flag expects and what it got."""
+    text = " ".join(re.sub(r"[│╭╮╰╯─]|-{3,}", " ", box).split())
+    if m := re.search(r"Error parsing (--[\w-]+): (.*?) Argument helptext: --[\w-]+ (.*)", text):
+        union = re.search(r"instantiated from \[(.*?)\]", m[2])  # a union's: every value
+        quoted = re.findall(r"'(.*?)'", union[1] if union else m[2])
+        value = " ".join(quoted if union else quoted[-1:])
+        metavar = next((k for k in EXPECTS if m[3].startswith(f"{k} ")), m[3].split()[0])
+        return f"{m[1]} expects {EXPECTS.get(metavar, metavar)}, got {value!r}"
+    if m := re.search(r"invalid choice '(.*?)' for argument '(--[\w-]+)'\. Expected one of "
+                      r"\((.*?)\)", text):  # fmt: skip
+        choices = ", ".join(re.findall(r"'(.*?)'", m[3]))
+        return f"{m[2]} expects one of ({choices}), got {m[1]!r}"
+    if m := re.search(r"Missing value for argument '(--[\w-]+)'", text):
+        return f"{m[1]} expects a value"
+    if "Unrecognized options:" in text:  # tyro's headings and each guess's help: one line
+        rest = text.split("Unrecognized options:", 1)[1]
+        options = re.split(r" (?:Perhaps|Arguments similar|For full)", rest, maxsplit=1)[0]
+        guesses = re.findall(r"(?:meant|similar to --[\w-]+): (--[\w-]+)", rest)
+        guess = f"; did you mean {' or '.join(guesses)}?" if guesses else ""
+        return f"unrecognized option {options.strip()}{guess} (--help lists them)"
+    return re.sub(r" For full helptext.*", "", text)
+
+
+def given(argv: list[str]) -> dict[str, str]:
+    """The fields ``argv`` sets, whatever the spelling (``--a-b``, ``--a_b``, ``--a-b=1``,
+    ``--no-a``, ``--no_a``): ``{field: flag as typed}``."""
+    return {re.sub(r"^no_", "", a.split("=")[0][2:].replace("-", "_")): a.split("=")[0]
+            for a in argv if a.startswith("--")}  # fmt: skip
 
 
 def flag(name: str) -> str:
@@ -89,20 +127,36 @@ def check_positive(args, *names: str) -> None:
             fail(f"{flag(name)} must be positive, got {getattr(args, name)}")
 
 
+def check_range(args, name: str, low: float, high: float, open_low: bool = False) -> None:
+    """``args.name`` in [low, high], or (low, high] with ``open_low``."""
+    value = getattr(args, name)
+    if not (low < value if open_low else low <= value) or value > high:
+        fail(f"{flag(name)} must be in {'(' if open_low else '['}{low:g}, {high:g}], got {value}")
+
+
+def check_finite(args) -> None:
+    """Every float flag, and every float in a tuple flag, is a finite number (nan, inf: no)."""
+    for field in dataclasses.fields(args):
+        value = getattr(args, field.name)
+        values = value if isinstance(value, tuple) else (value,)
+        if any(isinstance(v, float) and not math.isfinite(v) for v in values):
+            fail(f"{flag(field.name)} must be a finite number, got {' '.join(map(str, values))}")
+
+
 def check_common(args) -> bool:
-    """The checks every script needs: a task that exists and that these scripts can drive,
-    positive sizes and learning rates, a budget of at least one batch that splits into
+    """The checks every script needs: finite numbers, a task that exists and that these scripts
+    can drive, positive sizes and learning rates, a budget of at least one batch that splits into
     minibatches, gamma and lambda in range, and ``--capture-video``'s prerequisites. Returns
     whether the task is a goal task."""
+    check_finite(args)
     check_positive(args, "num_envs")
     goal_task = check_task(args.env_id, args.num_envs)
     check_positive(args, "total_timesteps", "num_steps", "num_minibatches")
-    check_positive(args, "update_epochs", "eval_episodes", "learning_rate")
-    if args.seed < 0:
-        fail(f"--seed must be non-negative, got {args.seed}")
-    for name in ("save_freq", "eval_freq", "eval_workers", "resume_freq"):
+    check_positive(args, "update_epochs", "eval_episodes", "learning_rate", "kl_target")
+    for name in ("seed", "save_freq", "eval_freq", "eval_workers", "resume_freq", "beta_init"):
         if getattr(args, name) < 0:
-            fail(f"{flag(name)} must be non-negative (0 turns it off), got {getattr(args, name)}")
+            off = " (0 turns it off)" if name.endswith("freq") else ""
+            fail(f"{flag(name)} must be non-negative{off}, got {getattr(args, name)}")
     batch_size = args.num_envs * args.num_steps
     if args.total_timesteps < batch_size:
         fail(
@@ -114,67 +168,129 @@ def check_common(args) -> bool:
             f"batch {batch_size} (num_envs * num_steps) does not split into "
             f"{args.num_minibatches} minibatches; change --num-minibatches"
         )
-    if not 0 < args.gamma <= 1 or not 0 <= args.gae_lambda <= 1:
-        fail("--gamma must be in (0, 1] and --gae-lambda in [0, 1]")
-    if args.kl_target <= 0 or args.beta_init < 0:
-        fail("--kl-target must be positive and --beta-init non-negative")
+    check_range(args, "gamma", 0.0, 1.0, open_low=True)
+    check_range(args, "gae_lambda", 0.0, 1.0)
     if args.capture_video:
         check_video(args.env_id)
     return goal_task
 
 
 def refuse_ignored(argv: list[str], ignored: dict[str, str]) -> None:
-    """A flag given on the command line that would change nothing fails: ``{flag: why}``."""
-    for flag in (a.split("=")[0] for a in argv):
-        if flag in ignored:
-            fail(f"{flag} would be ignored ({ignored[flag]}): leave it out")
+    """A flag given on the command line that would change nothing fails: ``{flag: why}``; any
+    spelling of it (``--a_b``, ``--no-a``, ``--a=1``) too."""
+    for name, typed in given(argv).items():
+        if flag(name) in ignored:
+            fail(f"{typed} would be ignored ({ignored[flag(name)]}): leave it out")
+
+
+CRITIC_FLAGS = (
+    "--critic-learning-rate",
+    "--critic-batch-size",
+    "--critic-steps",
+    "--tau",
+    "--buffer-size",
+    "--learning-starts",
+    "--twin-critic",
+)  # Q-Prop's and IPG's
+
+
+def qprop_ignored(args) -> dict[str, str]:
+    """Q-Prop's flags that would change nothing, given the others: ``{flag: why}``."""
+    ignored = {} if args.norm_adv else {"--normalization": "--no-norm-adv: nothing to normalise"}
+    if args.eta_mode == "none":  # eta = 0: no control variate, no analytic term, no critic
+        why = "--eta-mode none trains no critic"
+        ignored |= dict.fromkeys((*CRITIC_FLAGS, "--critic-hidden", "--normalization"), why)
+    return ignored
+
+
+def ipg_ignored(args, goal_task: bool = True) -> dict[str, str]:
+    """IPG's flags that would change nothing, given the others (``{flag: why}``): HER's without
+    goals, with --no-her or (the strategy) at k = 0; the replay batch size with on-policy states;
+    ``--normalization`` without advantage normalisation; the control variate at nu = 1 (the
+    on-policy term it enters has weight 0); and everything of the critic's, the replay's and
+    the diagnostics' at nu = 0 without control variate, where no term uses the critic."""
+    her_flags = ("--her", "--her-n-sampled-goal", "--her-goal-selection-strategy")
+    ignored = {} if args.norm_adv else {"--normalization": "--no-norm-adv: nothing to normalise"}
+    if not goal_task:
+        ignored |= dict.fromkeys(
+            (*her_flags, "--clip-q-target"), f"{args.env_id} is not a goal task"
+        )
+    elif not args.her:
+        ignored |= dict.fromkeys(her_flags[1:], "--no-her")
+    elif args.her_n_sampled_goal == 0:
+        ignored["--her-goal-selection-strategy"] = "--her-n-sampled-goal 0 relabels no goal"
+    if args.off_policy_states == "batch":
+        ignored["--off-policy-batch-size"] = "--off-policy-states batch"
+    if args.nu == 1 and args.use_cv:
+        ignored["--use-cv"] = "at --nu 1 the on-policy term, which carries it, has weight 0"
+    if args.nu == 0 and not args.use_cv:
+        off_policy = ("--q-bar", "--off-policy-states", "--off-policy-batch-size",
+                      "--normalization", "--action-l2", "--bounds-loss", "--critic-target",
+                      "--clip-q-target", "--diagnostics-every", *her_flags)  # fmt: skip
+        why = "at --nu 0 without --use-cv no term uses the critic"
+        ignored |= dict.fromkeys((*CRITIC_FLAGS, *off_policy), why)
+    return ignored
 
 
 def check_her(args, argv: list[str], goal_task: bool) -> None:
-    """IPG's flags that would be ignored (HER's without goals or with --no-her, the replay batch
-    size with on-policy states, the penalties, twin critic and critic target at nu = 0) are refused,
-    and so are nu outside [0, 1], a negative penalty, a target sigma not positive or not one per
-    action dimension, a non-positive replay batch, HER on a task it cannot serve, and grasped
-    starts outside [0, 1] or where nothing can be grasped."""
-    if not 0.0 <= args.nu <= 1.0 or args.her_n_sampled_goal < 0:
-        fail(f"--nu must be in [0, 1] (got {args.nu}) and --her-n-sampled-goal non-negative")
+    """IPG's flags that would be ignored (``ipg_ignored``) are refused, and so are nu outside
+    [0, 1], a negative k or penalty, bad critic settings (``check_critic``), a target sigma not
+    positive or not one per action dimension, a non-positive replay batch, HER on a task it
+    cannot serve, and grasped starts outside [0, 1] or where nothing can be grasped. A task
+    without goals is said to train without HER."""
+    check_range(args, "nu", 0.0, 1.0)
+    for name in ("her_n_sampled_goal", "action_l2", "bounds_loss"):
+        if getattr(args, name) < 0:
+            fail(f"{flag(name)} must be non-negative, got {getattr(args, name)}")
+    refuse_ignored(argv, ipg_ignored(args, goal_task))
+    check_critic(args)
     check_positive(args, "off_policy_batch_size")
-    her_flags = ("--her-n-sampled-goal", "--her-goal-selection-strategy")
-    ignored = dict.fromkeys(her_flags, "--no-her") if not args.her else {}  # flag: why ignored
-    if not goal_task:
-        ignored = dict.fromkeys(("--her", *her_flags), f"{args.env_id} is not a goal task")
-    if args.off_policy_states == "batch":
-        ignored["--off-policy-batch-size"] = "--off-policy-states batch"
-    if args.nu == 0 and not args.use_cv:
-        penalties = ("--action-l2", "--bounds-loss", "--twin-critic", "--critic-target")
-        ignored |= dict.fromkeys(penalties, "no off-policy term at nu = 0")
-    refuse_ignored(argv, ignored)
     stds = () if args.target_std is None else tuple(np.atleast_1d(args.target_std))
-    if min(args.action_l2, args.bounds_loss) < 0 or min(stds, default=1.0) <= 0:
-        fail("--action-l2 and --bounds-loss must be non-negative and --target-std positive")
-    if len(stds) > 1 and len(stds) != (dims := gym.make(args.env_id).action_space.shape[0]):
-        fail(f"--target-std takes one sigma or one per action dimension ({dims} on "
-             f"{args.env_id}), not {len(stds)}")  # fmt: skip
+    if min(stds, default=1.0) <= 0:
+        fail(f"--target-std must be positive, got {' '.join(map(str, stds))}")
+    if args.target_std is not None and len(stds) != 1:  # none (a bare --target-std) or several
+        if len(stds) != (dims := gym.make(args.env_id).action_space.shape[0]):
+            fail(f"--target-std takes one sigma or one per action dimension ({dims} on "
+                 f"{args.env_id}), not {len(stds)}")  # fmt: skip
     if goal_task and args.her and (why := hindsight_refusal(args.env_id)):
         fail(why)
-    if not 0.0 <= args.grasped_start <= 1.0:
-        fail(f"--grasped-start is a share of the episodes, in [0, 1]; got {args.grasped_start}")
+    check_range(args, "grasped_start", 0.0, 1.0)
     if args.grasped_start and (why := grasped_start.refusal(args.env_id)):
         fail(why)
+    if not goal_task:
+        print(f"{args.env_id} has no goals: hindsight relabelling (HER) is off", flush=True)
 
 
 def check_critic(args) -> None:
     """The checks of an off-policy critic's settings (Q-Prop's and IPG's)."""
     check_positive(args, "critic_batch_size", "buffer_size", "critic_learning_rate")
     check_positive(args, *(name for name in ("hidden", "critic_hidden") if hasattr(args, name)))
-    if not 0.0 < args.tau <= 1.0:
-        fail(f"--tau must be in (0, 1], got {args.tau}")
-    if args.critic_steps < 0 or args.learning_starts < 0:
-        fail("--critic-steps and --learning-starts must be non-negative")
+    check_range(args, "tau", 0.0, 1.0, open_low=True)
+    for name in ("critic_steps", "learning_starts"):
+        if getattr(args, name) < 0:
+            fail(f"{flag(name)} must be non-negative, got {getattr(args, name)}")
     rows, longest = args.buffer_size // args.num_envs, gym.spec(args.env_id).max_episode_steps
     if longest and rows < longest:  # replay samples finished episodes only
         fail(f"--buffer-size {args.buffer_size} keeps {rows} steps per env, less than one "
              f"{args.env_id} episode ({longest} steps); enlarge it")  # fmt: skip
+
+
+def current_version(env_id: str) -> str | None:
+    """The highest registered version of ``env_id``'s task that constructs (FetchReach-v1:
+    FetchReach-v4), or None."""
+    try:
+        namespace, name, _ = gym.envs.registration.parse_env_id(env_id)
+    except gym.error.Error:
+        return None
+    specs = [s for s in gym.registry.values() if (s.namespace, s.name) == (namespace, name)]
+    for spec in sorted(specs, key=lambda s: s.version or 0, reverse=True):
+        try:
+            with warnings.catch_warnings(action="ignore"):
+                gym.make(spec.id).close()
+            return spec.id
+        except Exception:
+            continue
+    return None
 
 
 def check_task(env_id: str, num_envs: int = 1) -> bool:
@@ -183,15 +299,18 @@ def check_task(env_id: str, num_envs: int = 1) -> bool:
     or a goal Dict (``observation``, ``achieved_goal``, ``desired_goal``, each a vector).
     Returns whether it is a goal task."""
     if env_id not in gym.registry:
-        close = difflib.get_close_matches(env_id, gym.registry, n=1)
-        hint = f"did you mean {close[0]}?" if close else "use a registered id such as Hopper-v5"
+        close = current_version(env_id) or next(iter(difflib.get_close_matches(
+            env_id, gym.registry, n=1)), None)  # fmt: skip
+        hint = f"did you mean {close}?" if close else "use a registered id such as Hopper-v5"
         fail(f"unknown --env-id {env_id!r}; {hint}")
     try:
-        env = gym.make(env_id)
+        with warnings.catch_warnings(action="ignore"):  # an old version's: refused below
+            env = gym.make(env_id)
     except gym.error.DependencyNotInstalled as e:
         if "mujoco_py" in str(e):
+            current = current_version(env_id) or "a v4 or v5 MuJoCo task such as Hopper-v5"
             fail(f"{env_id} needs the deprecated mujoco-py, which this project does not support; "
-                 "use a v4 or v5 MuJoCo task such as Hopper-v5")  # fmt: skip
+                 f"use {current}")  # fmt: skip
         fail(f"{env_id} needs a dependency that is not installed: {' '.join(map(str, e.args))}")
     action_space, observation_space = env.action_space, env.observation_space
     if (model := getattr(env.unwrapped, "model", None)) is not None:  # a MuJoCo task

@@ -119,7 +119,7 @@ def test_at_nu_one_sigma_follows_only_the_kl_penalty_unless_q_bar_is_sampled(q_b
     "env_id, flags",
     [
         ("FetchReach-v4", ["--her"]),
-        ("FetchReach-v4", ["--no-her", "--use-cv", "--off-policy-states", "batch"]),
+        ("FetchReach-v4", ["--no-her", "--nu", "0.5", "--use-cv", "--off-policy-states", "batch"]),
         ("Hopper-v5", ["--num-steps", "100", "--twin-critic", "--critic-target", "sample"]),
         ("FetchPush-v4", []),  # the fetch suite's tasks (benchmarks/run.py)
         ("FetchPickAndPlace-v4", []),
