@@ -73,6 +73,8 @@ def phase_samples(raw: str) -> dict:
     totals = {}
     for line in raw.splitlines():
         stack, _, count = line.rpartition(" ")
+        if not count.isdigit():  # a frame's name broken over lines (a docstring-built one)
+            continue
         phase = phase_of([parse_frame(frame) for frame in stack.split(";")])
         totals[phase] = totals.get(phase, 0) + int(count)
     return totals

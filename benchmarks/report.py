@@ -79,23 +79,31 @@ class Args:
 
 
 def read_run(run_dir: Path) -> dict:
-    """Every tag of TAGS of one run, as {tag: [[step, value], ...]}, plus its wall time."""
-    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    """Every tag of TAGS of one run, as {tag: [[step, value], ...]}, plus its wall time. A resumed
+    run has an event file per attempt, read here in the order they were written: a resumed one
+    opens with a SessionLog START at its ``purge_step`` (common/run.py), and as in TensorBoard
+    the points logged before it at that step or later (a killed attempt's) are dropped. The wall
+    time sums the attempts' (the pauses not counted)."""
+    from tensorboard.backend.event_processing.event_file_loader import LegacyEventFileLoader
+    from tensorboard.compat.proto.event_pb2 import SessionLog
 
-    acc = EventAccumulator(str(run_dir), size_guidance={"scalars": 0})
-    acc.Reload()
-    out, times = {}, []
-    for tag in acc.Tags()["scalars"]:
-        if tag in TAGS:
-            events = acc.Scalars(tag)
-            out[tag] = [[e.step, round(e.value, 5)] for e in events]
-            times += [e.wall_time for e in events]
-    out["wall_time"] = max(times) - min(times) if times else 0.0
-    sessions = sorted(run_dir.glob("events.out.tfevents.*"))
-    if len(sessions) > 1:  # a resumed run: one event file per session, the pauses not counted
-        out["wall_time"] = sum(read_run(session)["wall_time"] for session in sessions)
-    if "hyperparameters/text_summary" in acc.Tags().get("tensors", []):
-        text = acc.Tensors("hyperparameters/text_summary")[0].tensor_proto.string_val[0].decode()
+    files = [
+        list(LegacyEventFileLoader(str(f)).Load()) for f in run_dir.glob("events.out.tfevents.*")
+    ]
+    out, text, wall_time = {}, None, 0.0
+    for events in sorted(filter(None, files), key=lambda events: events[0].wall_time):
+        times = [e.wall_time for e in events for v in e.summary.value if v.tag in TAGS]
+        wall_time += max(times) - min(times) if times else 0.0
+        for e in events:
+            if e.session_log.status == SessionLog.START:  # a resumed attempt, from e.step on
+                out = {tag: [p for p in points if p[0] < e.step] for tag, points in out.items()}
+            for v in e.summary.value:
+                if v.tag in TAGS:
+                    out.setdefault(v.tag, []).append([e.step, round(v.simple_value, 5)])
+                elif v.tag == "hyperparameters/text_summary" and text is None:
+                    text = v.tensor.string_val[0].decode()
+    out["wall_time"] = wall_time
+    if text is not None:
         cells = [line.strip("|").split("|") for line in text.splitlines()]
         keep = ("eval_episodes", "total_timesteps")
         out["args"] = {c[0]: c[1] for c in cells if len(c) == 2 and c[0] in keep}

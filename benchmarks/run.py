@@ -5,14 +5,21 @@
     python benchmarks/report.py --suite paper         # figures and table from the event files
 
 Every run gets a folder ``{out-dir}/{suite}/{name}__{env_id}__seed{seed}/`` holding the script's
-own run folder (TensorBoard events), ``stdout.log``, ``stderr.log`` and ``exit_code``. A run whose
-``exit_code`` says 0 is skipped by the next call (resume); a failed one is run again. The call
-exits non-zero if any run failed.
+own run folder (TensorBoard events), ``stdout.log``, ``stderr.log``, ``exit_code`` and while it
+runs ``pid`` (a later call starts no second copy of a run still running). A run whose
+``exit_code`` says 0 is skipped by the next call (resume); a failed one is run again, and one
+stopped goes on from its resume point if it has one. The call exits non-zero if any run failed.
+Ctrl-C (or SIGTERM) stops the suite: the running scripts save and exit, no other run starts.
 """
 
+import ctypes
+import importlib
 import os
+import shlex
+import signal
 import subprocess
 import sys
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
@@ -71,6 +78,13 @@ class Run:
 
 
 HOPPER_STEPS, FETCH_STEPS = 1_000_000, 30_000
+CRITIC_ONLY = ("--critic-steps", "--learning-starts", "--diagnostics-every")
+
+
+def critic_free(flags: tuple[str, ...]) -> tuple[str, ...]:
+    """``flags`` without the critic's, which ipg_her.py refuses at nu = 0 (no term uses it)."""
+    drop = {i + d for i, f in enumerate(flags) if f in CRITIC_ONLY for d in (0, 1)}
+    return tuple(f for i, f in enumerate(flags) if i not in drop)
 
 
 def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_000) -> list[Run]:
@@ -116,7 +130,7 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
             fetch(f"ipg_her_nu{nu}", "ipg_her.py", "--nu", str(nu)) for nu in (0.0, 0.2, 0.5, 0.8)
         ]
         grid += [
-            fetch("ipg_her_cv", "ipg_her.py", "--use-cv"),
+            fetch("ipg_her_nu0.2_cv", "ipg_her.py", "--nu", "0.2", "--use-cv"),  # cv needs nu < 1
             fetch("ipg_her_batch_states", "ipg_her.py", "--off-policy-states", "batch"),
         ]
         grid += [
@@ -151,7 +165,8 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
                     if cv and nu == 1.0:  # the likelihood-ratio term has no weight: nu = 1 again
                         continue
                     name = f"ipg_her_nu{nu}_{batch}" + ("_cv" if cv else "")
-                    grid.append(fetch(name, "ipg_her.py", "--nu", str(nu), *flags,
+                    flags_nu = flags if cv or nu else critic_free(flags)
+                    grid.append(fetch(name, "ipg_her.py", "--nu", str(nu), *flags_nu,
                                       *(("--use-cv",) if cv else ())))  # fmt: skip
         # nu = 1 with Q_bar sampled: sigma then learns from the critic, as the likelihood-ratio
         # term lets it at nu < 1 (with Q_bar from the mean, nothing but the KL penalty moves it)
@@ -166,11 +181,12 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
                       "--num-minibatches", "32", "--learning-rate", "3e-4", "--gamma", "0.99",
                       "--kl-target", "0.01", "--norm-reward", "--critic-steps", "2048",
                       "--learning-starts", "10000", "--eval-freq", "20000", *every)  # fmt: skip
-        grid += [hopper(f"ipg_nu{nu}_300k", "ipg_her.py", "--nu", str(nu), *hopper_ipg)
+        grid += [hopper(f"ipg_nu{nu}_300k", "ipg_her.py", "--nu", str(nu),
+                        *(hopper_ipg if nu else critic_free(hopper_ipg)))
                  for nu in (0.0, 0.2, 0.5, 0.8, 1.0)]  # fmt: skip
         # the winner to 1M steps: nu = 0 (no middle beat it on fresh seeds), run in parts
         to_1m = ("--total-timesteps", "1000000", "--resume-freq", "100000", *hopper_ipg[2:])
-        grid.append(hopper("ipg_nu0.0_1M", "ipg_her.py", "--nu", "0.0", *to_1m))
+        grid.append(hopper("ipg_nu0.0_1M", "ipg_her.py", "--nu", "0.0", *critic_free(to_1m)))
         grid.append(hopper("ipg_nu0.2_cv_batch_300k", "ipg_her.py", "--nu", "0.2", "--use-cv",
                            "--off-policy-states", "batch", *hopper_ipg))  # fmt: skip
         # the off-policy end with DDPG's slow target (tau 0.005, not FetchReach's 0.05): at 2,048
@@ -320,20 +336,70 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     ]
 
 
-def execute(command: list[str], run_dir: str) -> int:
-    """Run one command with its output kept in ``run_dir``; write and return its exit code."""
+STOPPED, RUNNING, LOCK = [], set(), threading.RLock()  # the signals received, the children
+STOP_TIMEOUT = 60.0  # seconds a stopped child has to save and exit before it is killed
+LIBC = ctypes.CDLL(None) if sys.platform == "linux" else None
+
+
+def die_with_runner() -> None:
+    """In a child before it starts (Linux): SIGTERM when the runner ends, even by kill -9, so
+    that the run stops as on Ctrl-C (saving) rather than going on as an orphan."""
+    LIBC.prctl(1, signal.SIGTERM)  # 1: PR_SET_PDEATHSIG
+
+
+def stop(signum, frame) -> None:
+    """Ctrl-C or SIGTERM: no run starts any more, and each running one gets the signal once (its
+    own process group keeps the terminal's Ctrl-C from it): its script saves and exits (130 or
+    143). A script still running ``STOP_TIMEOUT`` s later, or at a second signal, is killed."""
+    with LOCK:
+        STOPPED.append(signum)
+        for proc in RUNNING:
+            proc.send_signal(signum if len(STOPPED) == 1 else signal.SIGKILL)
+    if len(STOPPED) == 1:
+        timer = threading.Timer(STOP_TIMEOUT, stop, (signal.SIGKILL, None))
+        timer.daemon = True  # the runner does not wait for it to end
+        timer.start()
+
+
+def execute(command: list[str], run_dir: str) -> int | None:
+    """Run one command with its output kept in ``run_dir``; write and return its exit code (None:
+    not started, the suite was stopped). While it runs, its pid is in ``run_dir/pid``."""
     run_dir = Path(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    # appended: an attempt that resumes keeps the output of the one it resumes
-    with open(run_dir / "stdout.log", "a") as out, open(run_dir / "stderr.log", "a") as err:
-        code = subprocess.call(command, cwd=ROOT, env=env, stdout=out, stderr=err)
+    with LOCK:  # a stop comes either before (nothing starts) or after (it finds the child)
+        if STOPPED:
+            return None
+        run_dir.mkdir(parents=True, exist_ok=True)
+        # appended: an attempt that resumes keeps the output of the one it resumes
+        with open(run_dir / "stdout.log", "a") as out, open(run_dir / "stderr.log", "a") as err:
+            proc = subprocess.Popen(command, cwd=ROOT, env=env, stdout=out, stderr=err,
+                                    start_new_session=True,
+                                    preexec_fn=die_with_runner if LIBC else None)  # fmt: skip
+        RUNNING.add(proc)
+        (run_dir / "pid").write_text(f"{proc.pid}\n")
+    code = proc.wait()
+    with LOCK:
+        RUNNING.discard(proc)
     (run_dir / "exit_code").write_text(f"{code}\n")
+    (run_dir / "pid").unlink()
     return code
 
 
 def finished(run_dir: Path) -> bool:
     return (run_dir / "exit_code").exists() and (run_dir / "exit_code").read_text().strip() == "0"
+
+
+def running(run_dir: Path) -> int | None:
+    """The pid of a process still running this run (its runner was killed), or None: the pid
+    file names no live process, or (on Linux) one whose command line does not name the run (a
+    zombie, or the pid taken by another process since)."""
+    try:
+        pid = int((run_dir / "pid").read_text())
+        os.kill(pid, 0)
+        cmdline = Path(f"/proc/{pid}/cmdline")
+        return None if cmdline.exists() and run_dir.name not in cmdline.read_text() else pid
+    except (OSError, ValueError):
+        return None
 
 
 def fmt(seconds: float) -> str:
@@ -346,6 +412,10 @@ def main(args: Args) -> int:
     runs = [r for r in runs if args.only in r.folder]
     todo = [r for r in runs if not finished(suite_dir / r.folder)]
     skipped = len(runs) - len(todo)
+    alive = {r: pid for r in todo if (pid := running(suite_dir / r.folder))}
+    for r, pid in alive.items():  # a killed runner's run, still stopping: no second copy
+        print(f"{r.folder}: still running as pid {pid}; not started again", flush=True)
+    todo = [r for r in todo if r not in alive]
     if args.dry_run:
         try:
             for r in todo:
@@ -355,12 +425,16 @@ def main(args: Args) -> int:
         except BrokenPipeError:  # `--dry-run | head`: the reader has what it wanted
             sys.stdout = open(os.devnull, "w")
         return 0
-    start, failed, done = time.time(), [], 0
+    start, failed, stopped, done = time.time(), [], [], 0
     print(f"suite {args.suite}: {len(todo)} to run, {skipped} already finished, "
           f"{args.workers} workers, backend {args.backend}", flush=True)  # fmt: skip
 
-    def report(run: Run, code: int) -> None:
+    def report(run: Run, code: int | None) -> None:
         nonlocal done
+        if STOPPED and code != 0:  # stopped by the signal, or never started (None)
+            if code is not None:
+                stopped.append(run.folder)
+            return
         done += 1
         elapsed = time.time() - start
         eta = elapsed / done * (len(todo) - done)
@@ -385,7 +459,8 @@ def main(args: Args) -> int:
         # workers import this module from the project folder (the same path on every node)
         ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False,
                  runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}})  # fmt: skip
-        remote = ray.remote(num_cpus=1)(execute)
+        sys.path.insert(0, str(ROOT))  # this module by name, as run.py's __main__ won't pickle
+        remote = ray.remote(num_cpus=1)(importlib.import_module("benchmarks.run").execute)
         pending = {
             remote.remote(r.command(suite_dir / r.folder), str(suite_dir / r.folder)): r
             for r in todo
@@ -403,12 +478,28 @@ def main(args: Args) -> int:
             }
             for future in as_completed(futures):
                 report(futures[future], future.result())
+    if STOPPED:
+        resumable = sum(any((suite_dir / f).glob("*/resume.pt")) for f in stopped)
+        print(f"stopped by {signal.Signals(STOPPED[0]).name}: {done - len(failed)} finished, "
+              f"{len(failed)} failed, {len(stopped)} interrupted ({resumable} with a resume "
+              f"point), {len(todo) - done - len(stopped)} not started; to resume, run the same "
+              f"command again: python {shlex.join(sys.argv)}", flush=True)  # fmt: skip
+        return 128 + STOPPED[0]
     print(f"summary: {done - len(failed)} done, {len(failed)} failed, {skipped} skipped, "
-          f"wall time {fmt(time.time() - start)}")  # fmt: skip
+          f"{len(alive)} still running, wall time {fmt(time.time() - start)}")  # fmt: skip
     for name in failed:
         print(f"failed: {name}")
-    return 1 if failed else 0
+    return 1 if failed or alive else 0
+
+
+def cli() -> int:
+    """The command line; Ctrl-C and SIGTERM stop a local suite cleanly (``stop``)."""
+    args = tyro.cli(Args)
+    if args.backend == "local":
+        signal.signal(signal.SIGINT, stop)
+        signal.signal(signal.SIGTERM, stop)
+    return main(args)
 
 
 if __name__ == "__main__":
-    sys.exit(main(tyro.cli(Args)))
+    sys.exit(cli())

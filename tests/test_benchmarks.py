@@ -333,3 +333,30 @@ def test_slide_strikes_reads_far_slides_and_falls_from_the_replay_buffer_in_time
     rb = {"achieved_goal": goals, "next_achieved_goal": after}
     assert slide_strikes.replay_slides(rb, since=0) == (0.25, 0.25)
     assert slide_strikes.replay_slides(rb, since=0.5) == (0.5, 0.0)
+
+
+def test_every_suite_command_passes_its_scripts_checks(monkeypatch):
+    """A suite row its script would refuse (a flag that changes nothing, say) fails here, not
+    hours into a suite."""
+    import functools
+
+    import ipg_her
+    import ppo_kl
+    import qprop_ppo
+    from common import cli
+
+    scripts = {"ppo_kl.py": ppo_kl, "qprop_ppo.py": qprop_ppo, "ipg_her.py": ipg_her}
+    monkeypatch.setattr(cli.gym, "make", functools.cache(cli.gym.make))  # spaces only: one each
+    refused = []
+    for suite in run.Args.__annotations__["suite"].__args__:
+        for r in run.suite_runs(suite):
+            module = scripts[r.script]
+            argv = ["--env-id", r.env_id, "--seed", str(r.seed), *r.flags]
+            try:
+                kwargs = {"task_defaults": ipg_her.TASK_DEFAULTS, "ignored": cli.ipg_ignored}
+                args = cli.parse_args(module.Args, argv, **(kwargs if module is ipg_her else {}))
+                params = module.check_args.__code__.co_argcount
+                module.check_args(*(args, argv)[:params])
+            except SystemExit:
+                refused.append(f"{suite}/{r.folder}")
+    assert not refused, refused

@@ -75,6 +75,25 @@ def test_table_statistics_equal_hand_computed_values(tmp_path):
     assert cells[7] == "950 (3/4 seeds)"
 
 
+def test_a_resumed_run_reads_each_step_once_with_the_resumed_attempts_values(tmp_path):
+    """A resumed run (common/run.py) appends a second event file to its folder, opened with
+    purge_step: the steps the killed attempt logged from there on are dropped, as TensorBoard does,
+    files read in the order they were written, whatever order their names sort in (the same
+    second, pid 1000 after pid 999: the second file's name sorts first)."""
+    for first, second in (("999", "1000"), ("1000", "999")):
+        run_dir = tmp_path / first
+        for pid, purge_step, steps, offset in ((first, None, range(1, 11), 0),
+                                               (second, 6, range(6, 13), 100)):  # fmt: skip
+            writer = SummaryWriter(str(run_dir), purge_step=purge_step)
+            for step in steps:
+                writer.add_scalar("charts/episodic_return", offset + step, step)
+            writer.close()
+            (new,) = [p for p in run_dir.iterdir() if ".host." not in p.name]
+            new.rename(run_dir / f"events.out.tfevents.1700000000.host.{pid}.0")
+        assert report.read_run(run_dir)["charts/episodic_return"] == (
+            [[s, s] for s in range(1, 6)] + [[s, 100 + s] for s in range(6, 13)])  # fmt: skip
+
+
 def test_bootstrap_band_against_the_exact_bootstrap_distribution():
     """Seeds 0, 3, 6: resampled means are whole numbers; P(mean = 0) = P(mean = 6) = 1/27 > 2.5%,
     so the 95% band of the mean is exactly [0, 6]; identical seeds give a band of zero width."""

@@ -1,0 +1,156 @@
+"""benchmarks/run.py stopped: Ctrl-C or SIGTERM stops the suite (the running scripts save, nothing
+queued starts, the same command resumes), and kill -9 takes the running scripts with it."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from conftest import ROOT
+
+CHILD = '''"""A script as run.py sees one: Ctrl-C or SIGTERM saves a resume point and exits
+128 + signal (the one named "stubborn" ignores both); with --resume it is done at once."""
+import os, signal, sys, time
+from pathlib import Path
+
+argv = sys.argv
+log_dir, name = Path(argv[argv.index("--log-dir") + 1]), argv[argv.index("--exp-name") + 1]
+if "--resume" in argv:
+    (log_dir / "resumed").touch()
+    sys.exit(0)
+
+
+def stop(signum, frame):
+    with open(log_dir / "signals", "a") as f:
+        f.write(f"{signum}\\n")
+    time.sleep(float(os.environ.get("FAKE_SAVE", "0.5")))  # saving
+    (log_dir / "attempt").mkdir(exist_ok=True)
+    (log_dir / "attempt" / "resume.pt").touch()
+    sys.exit(128 + signum)
+
+
+for signum in (signal.SIGINT, signal.SIGTERM):
+    signal.signal(signum, signal.SIG_IGN if name == "stubborn" else stop)
+with open(log_dir / "starts", "a") as f:
+    f.write(f"{os.getpid()}\\n")
+time.sleep(float(os.environ.get("FAKE_SLEEP", "30")))
+'''
+DRIVER = """import sys
+sys.path.insert(0, {root!r})
+from benchmarks import run
+run.STOP_TIMEOUT = 2
+names = ("clean", "stubborn", "queued1", "queued2")
+run.suite_runs = lambda *args: [run.Run(name, {child!r}, "Env-v0", 1) for name in names]
+sys.exit(run.cli())
+"""
+
+
+def runner(tmp_path: Path, *flags: str, **env: str) -> subprocess.Popen:
+    """benchmarks/run.py's command line on a suite of fake scripts, in a process group of its own
+    (the test ends whatever is left of it)."""
+    (tmp_path / "child.py").write_text(CHILD)
+    driver = tmp_path / "driver.py"
+    driver.write_text(DRIVER.format(root=str(ROOT), child=str(tmp_path / "child.py")))
+    cmd = [sys.executable, str(driver), "--suite", "quick", "--out-dir", str(tmp_path), *flags]
+    return subprocess.Popen(cmd, cwd=ROOT, env={**os.environ, **env}, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+
+
+def folder(tmp_path: Path, name: str) -> Path:
+    return tmp_path / "quick" / f"{name}__Env-v0__seed1"
+
+
+def wait_for(condition, timeout: float = 10) -> None:
+    end = time.time() + timeout
+    while not condition():
+        assert time.time() < end, "timed out"
+        time.sleep(0.05)
+
+
+def alive(pid: int) -> bool:
+    """Running, not a zombie (whose command line is empty)."""
+    try:
+        return bool(Path(f"/proc/{pid}/cmdline").read_bytes())
+    except OSError:
+        return False
+
+
+def end(proc: subprocess.Popen, tmp_path: Path) -> None:
+    """Kill what a failed test left running: the runner's group and the fake scripts."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+    for starts in (tmp_path / "quick").glob("*/starts"):
+        for pid in map(int, starts.read_text().split()):
+            if alive(pid):
+                os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_stops_the_suite_and_the_same_command_resumes_it(tmp_path, signum):
+    """Two runs at once: the clean one gets the signal once, saves and exits 128 + signal; the
+    stubborn one is killed after run.STOP_TIMEOUT (2 s here); the queued ones never start. One
+    line says so and how to resume, the exit code is the signal's, no traceback. The same
+    command then resumes the clean run, starts the stubborn one again and runs the others."""
+    proc = runner(tmp_path, "--workers", "2")
+    try:
+        wait_for(
+            lambda: all((folder(tmp_path, n) / "starts").exists() for n in ("clean", "stubborn"))
+        )
+        os.kill(proc.pid, signum)
+        out, err = proc.communicate(timeout=15)
+    finally:
+        end(proc, tmp_path)
+    assert proc.returncode == 128 + signum and "Traceback" not in err, err
+    header, line = out.splitlines()  # one line after the suite's first
+    counts = "0 finished, 0 failed, 2 interrupted (1 with a resume point), 2 not started; "
+    assert line.startswith(f"stopped by {signal.Signals(signum).name}: {counts}"), line
+    assert "--suite quick" in line and "resume" in line, line
+    assert (folder(tmp_path, "clean") / "signals").read_text() == f"{signum}\n"
+    assert (folder(tmp_path, "clean") / "exit_code").read_text() == f"{128 + signum}\n"
+    assert (folder(tmp_path, "stubborn") / "exit_code").read_text() == "-9\n"
+    assert not folder(tmp_path, "queued1").exists() and not folder(tmp_path, "queued2").exists()
+
+    proc = runner(tmp_path, "--workers", "2", FAKE_SLEEP="0")
+    try:
+        out, err = proc.communicate(timeout=15)
+    finally:
+        end(proc, tmp_path)
+    assert proc.returncode == 0, out + err
+    assert "4 to run, 0 already finished" in out
+    assert (folder(tmp_path, "clean") / "resumed").exists()
+    assert len((folder(tmp_path, "stubborn") / "starts").read_text().split()) == 2
+    assert all((folder(tmp_path, n) / "exit_code").read_text() == "0\n"
+               for n in ("clean", "stubborn", "queued1", "queued2"))  # fmt: skip
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="PR_SET_PDEATHSIG is Linux's")
+def test_kill_9_takes_the_runs_with_it_and_a_rerun_leaves_a_live_one_alone(tmp_path):
+    """kill -9 on the runner: its running script gets SIGTERM and saves (8 s here); a rerun while
+    it saves starts no second copy beside it, and says so; once it is gone a rerun resumes it."""
+    proc = runner(tmp_path, "--only", "clean", FAKE_SAVE="8")
+    run_dir = folder(tmp_path, "clean")
+    try:
+        wait_for(lambda: (run_dir / "starts").exists())
+        (pid,) = map(int, (run_dir / "starts").read_text().split())
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.communicate(timeout=10)
+        wait_for(lambda: (run_dir / "signals").exists(), timeout=5)
+        assert (run_dir / "signals").read_text() == f"{signal.SIGTERM}\n"
+        rerun = runner(tmp_path, "--only", "clean")
+        out, err = rerun.communicate(timeout=15)
+        assert alive(pid), "the rerun came after the script's clean stop: make FAKE_SAVE longer"
+        assert rerun.returncode == 1 and "Traceback" not in err, out + err
+        assert f"clean__Env-v0__seed1: still running as pid {pid}" in out, out
+        assert "0 to run" in out and len((run_dir / "starts").read_text().split()) == 1
+        wait_for(lambda: not alive(pid))
+        rerun = runner(tmp_path, "--only", "clean")
+        out, err = rerun.communicate(timeout=15)
+        assert rerun.returncode == 0, out + err
+        assert (run_dir / "resumed").exists() and (run_dir / "exit_code").read_text() == "0\n"
+    finally:
+        end(proc, tmp_path)
