@@ -233,7 +233,7 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
                 "returns": (advantages + values).flatten()}  # fmt: skip
 
 
-# ALGO LOGIC: the critic step (eq. 6-7)
+# ALGO LOGIC: the critic step: DDPG's TD learning, eq. 6's soft target update
 def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent,
                 data: dict, gamma: float, tau: float, target_range=None, sample=False):  # fmt: skip
     """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
@@ -274,7 +274,7 @@ def ipg_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, adv=None, s_off=N
         a_off = agent.actor_mean(s_off)
         if q_bar == "sample":  # a = mu + sigma eps: the gradient reaches sigma too
             a_off = a_off + agent.actor_logstd.exp() * torch.randn(a_off.shape, generator=generator)
-        off_term = -qf(s_off, a_off).mean()  # -Q_bar_w(s), s ~ beta (eq. 10)
+        off_term = -qf(s_off, a_off).mean()  # -Q_bar_w(s), s ~ beta (eq. 10): eq. 7's gradient
     return on_term, off_term
 
 
@@ -413,7 +413,7 @@ if __name__ == "__main__":
                 ro["rewards"] = reward_scaler(ro["rewards"], ro["episode_ends"])
                 reward_scale = 1.0 / reward_scaler.std()
 
-            # ALGO LOGIC: the critic first (eq. 6-7, Q-Prop's Algorithm 1), so that the control
+            # ALGO LOGIC: the critic first (eq. 6; Q-Prop's Algorithm 1), so that the control
             # variate and the critic's term see the new data; at nu = 0 without them, no critic
             learning = (args.nu > 0 or args.use_cv) and global_step >= args.learning_starts
             learning = learning and rb.num_sampleable() > 0

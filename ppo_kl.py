@@ -47,7 +47,7 @@ class Args(RunArgs):
     learning_rate: float = 3e-4
     """the learning rate of Adam (ipg_her.py: 1e-3, OpenAI's HER recipe)"""
     anneal_lr: bool = True
-    """anneal the learning rate linearly to zero (ipg_her.py: the critic's too; Slide's default)"""
+    """anneal the learning rate linearly to zero"""
     gamma: float = 0.99
     """the discount factor gamma (ipg_her.py: 0.98, OpenAI's HER recipe)"""
     gae_lambda: float = 0.95

@@ -10,7 +10,7 @@ and adds back its expectation analytically, so the gradient stays unbiased:
     grad J = E[grad log pi(a|s) (A_hat - eta A_bar)] + E[eta grad_a Q_w(s, mu(s)) grad mu(s)]
 
 (eq. 8). Inside PPO-KL one minibatch loss is -E[r_t (A_hat - eta A_bar)] - E[eta Q_w(s, mu(s))]
-+ beta KL[pi_old || pi]. The critic learns off-policy (eq. 6-7) before the policy update.
++ beta KL[pi_old || pi]. The critic learns off-policy (DDPG's, eq. 6) before the policy update.
 """
 
 import copy
@@ -52,7 +52,7 @@ class Args(RunArgs):
     learning_rate: float = 3e-4
     """the learning rate of Adam (ipg_her.py: 1e-3, OpenAI's HER recipe)"""
     anneal_lr: bool = True
-    """anneal the learning rate linearly to zero (ipg_her.py: the critic's too; Slide's default)"""
+    """anneal the learning rate linearly to zero"""
     gamma: float = 0.99
     """the discount factor gamma (ipg_her.py: 0.98, OpenAI's HER recipe)"""
     gae_lambda: float = 0.95
@@ -201,7 +201,7 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
                 "returns": (advantages + values).flatten()}  # fmt: skip
 
 
-# ALGO LOGIC: the critic step (eq. 6-7)
+# ALGO LOGIC: the critic step: DDPG's TD learning, eq. 6's soft target update
 def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent,
                 data: dict, gamma: float, tau: float) -> tuple[float, float]:  # fmt: skip
     """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
@@ -252,7 +252,7 @@ def qprop_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, analytic_scale:
     ratio = (pi.log_prob(mb["actions"]).sum(-1) - mb["logprobs"]).exp()  # r_t(theta)
     loss = -(ratio * mb["adv"]).mean()
     if torch.any(mb["eta"] != 0):  # the analytic term of eq. 8
-        q = qf(mb["obs"], agent.actor_mean(mb["obs"]))  # Q_w(s, mu_theta(s))
+        q = qf(mb["obs"], agent.actor_mean(mb["obs"]))  # Q_w(s, mu(s)): its gradient is eq. 7
         loss = loss - analytic_scale * (mb["eta"] * q).mean()
     return loss
 
@@ -362,7 +362,7 @@ if __name__ == "__main__":
                 ro["rewards"] = reward_scaler(ro["rewards"], ro["episode_ends"])
                 reward_scale = 1.0 / reward_scaler.std()
 
-            # ALGO LOGIC: the critic first (eq. 6-7, Q-Prop's Algorithm 1), so that the control
+            # ALGO LOGIC: the critic first (eq. 6; Q-Prop's Algorithm 1), so that the control
             # variate and the critic's term in the update see the new data
             learning = global_step >= args.learning_starts and rb.num_sampleable() > 0
             learning = learning and args.eta_mode != "none"

@@ -220,7 +220,8 @@ class HerReplayBuffer(ReplayBuffer):
             "next_achieved_goal": self.next_achieved_goal[rows, envs],
             "desired_goal": self.desired_goal[rows, envs].copy(),
         }  # fmt: skip
-        relabel = rng.random(batch_size) < self.her_ratio
+        # HER (the paper's Figure 2): a share her_ratio of the transitions get a goal achieved
+        relabel = rng.random(batch_size) < self.her_ratio  # later, and the reward it implies
         batch["relabelled"] = relabel
         if relabel.any():
             r, e = rows[relabel], envs[relabel]
