@@ -27,6 +27,7 @@ import signal
 import sys
 import threading
 import time
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Annotated
 
@@ -178,19 +179,6 @@ def _exit_with(parent: int) -> None:
     os._exit(1)
 
 
-class Done:
-    """An evaluation run here and now (``workers=0``), read as a worker's result is."""
-
-    def __init__(self, value):
-        self.value = value
-
-    def ready(self) -> bool:
-        return True
-
-    def get(self):
-        return self.value
-
-
 class BackgroundEvaluator:
     """Evaluations that run in a worker process while training goes on (``workers=1``), or at
     once in this process (``workers=0``): the results are the same, only the wall time differs.
@@ -202,34 +190,42 @@ class BackgroundEvaluator:
     """
 
     def __init__(self, workers: int):
-        self.pool, self.pending = None, collections.deque()
-        if workers > 0:  # spawned, not forked from a process running torch; Ctrl-C blocked in
-            ctx = multiprocessing.get_context("spawn")  # the worker from its first instruction
-            old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-            try:
-                self.pool = ctx.Pool(workers, _worker_init, (os.getpid(),))
-            finally:
-                signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        ctx = multiprocessing.get_context("spawn")  # no fork of a process running torch
+        self.pool = (
+            ProcessPoolExecutor(workers, ctx, _worker_init, (os.getpid(),)) if workers else None
+        )
+        self.pending = collections.deque()
 
     def submit(self, step: int, evaluate, *args) -> None:
         args = copy.deepcopy(args)
-        result = self.pool.apply_async(evaluate, args) if self.pool else Done(evaluate(*args))
-        self.pending.append((step, result))
+        if self.pool is None:
+            future = Future()
+            future.set_result(evaluate(*args))
+        else:  # the first submit starts the worker: Ctrl-C blocked in it from its first instruction
+            blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+            try:
+                future = self.pool.submit(evaluate, *args)
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+        self.pending.append((step, future))
 
     def finished(self, wait: bool = False) -> list[tuple[int, object]]:
         done = []
-        while self.pending and (wait or self.pending[0][1].ready()):
-            step, result = self.pending[0]
-            done.append((step, result.get()))  # Ctrl-C here leaves it pending: close() drops it
+        while self.pending and (wait or self.pending[0][1].done()):
+            step, future = self.pending[0]
+            done.append((step, future.result()))  # Ctrl-C here leaves it pending: close() drops it
             self.pending.popleft()
         return done
 
     def close(self, at_once: bool = False) -> None:
-        """Stop the worker: ``at_once`` (an interrupted run) or with evaluations pending, drop
-        them and end it now; else let it exit."""
+        """Stop the worker: ``at_once`` (an interrupted run) or with evaluations pending, end the
+        one in flight now; else let it exit. Either way wait for it: a pool left winding down
+        races the interpreter's exit (``OSError: [Errno 9]`` on Python 3.11)."""
         if self.pool is not None:
-            self.pool.terminate() if at_once or self.pending else self.pool.close()
-            self.pool.join()
+            if at_once or self.pending:  # concurrent.futures has no public way to stop a task
+                for process in list((self.pool._processes or {}).values()):
+                    process.terminate()
+            self.pool.shutdown(wait=True, cancel_futures=True)
             self.pool = None
 
 
