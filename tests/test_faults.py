@@ -135,9 +135,9 @@ def test_a_signal_right_after_the_run_folder_is_a_clean_stop(tmp_path, sig, code
 
 def test_kill_9_leaves_no_process_behind(tmp_path):
     """The evaluation worker (and what multiprocessing started beside it) ends with its run,
-    even in the middle of a long evaluation (3,000 episodes: minutes)."""
+    even in the middle of a long evaluation (30,000 episodes: minutes)."""
     proc, _ = start(tmp_path, "--env-id", "FetchReach-v4", "--total-timesteps", "1000000",
-                    "--eval-freq", "100", "--eval-episodes", "3000")  # fmt: skip
+                    "--eval-freq", "100", "--eval-episodes", "30000")  # fmt: skip
     deadline = time.time() + 60
     while not (kids := children(proc.pid)) and time.time() < deadline:
         time.sleep(0.5)
@@ -170,10 +170,10 @@ def test_a_pipe_closed_by_ctrl_c_costs_no_checkpoint(tmp_path):
 
 
 def test_a_signal_during_the_last_evaluation_stops_at_once(tmp_path):
-    """The final evaluation (a long one here) is dropped, not waited for."""
+    """The final evaluation (30,000 episodes: minutes) is dropped, not waited for."""
     proc, _ = start(tmp_path, "--env-id", "FetchReach-v4", "--total-timesteps", "200",
-                    "--eval-freq", "0", "--eval-episodes", "3000")  # fmt: skip
-    time.sleep(15)  # training's 200 steps are done; the evaluation of 150,000 steps is not
+                    "--eval-freq", "0", "--eval-episodes", "30000")  # fmt: skip
+    time.sleep(15)  # training's 200 steps are done; the evaluation of 1.5M steps is not
     assert proc.poll() is None
     sent = time.time()
     proc.send_signal(signal.SIGTERM)
@@ -263,10 +263,10 @@ def test_a_run_out_of_disk_stops_in_one_line_and_keeps_its_resume_point(tmp_path
 
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_an_interrupted_evaluation_is_one_line(finished_run, sig, code):
-    cmd = [sys.executable, "-m", "common.evaluate", str(finished_run), "--episodes", "5000",
+    cmd = [sys.executable, "-m", "common.evaluate", str(finished_run), "--episodes", "100000",
            "--seed", "1"]  # fmt: skip
     proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, stderr=subprocess.PIPE, text=True)
-    time.sleep(12)  # imported, evaluating 5,000 episodes
+    time.sleep(12)  # imported, evaluating 100,000 episodes (minutes)
     proc.send_signal(sig)
     err = proc.communicate(timeout=60)[1]
     assert proc.returncode == code and err == "evaluation interrupted; nothing was written\n", err
