@@ -1,7 +1,6 @@
 """Interpolated Policy Gradient (paper eq. 10; Gu et al. 2017) on PPO-KL, with Hindsight Experience
-Replay (Fig. 2; Andrychowicz et al. 2017). Docs: docs/ipg_her.md.
-
-IPG mixes the on-policy likelihood-ratio gradient with an off-policy one through a critic Q_w:
+Replay (Fig. 2; Andrychowicz et al. 2017). Docs: docs/ipg_her.md. IPG mixes the likelihood-ratio
+gradient with an off-policy one through a critic Q_w:
 
     grad J = (1 - nu) E_{rho, pi}[grad log pi(a|s) A_hat(s, a)] + nu E_{s ~ beta}[grad Q_bar_w(s)]
 
@@ -25,26 +24,20 @@ from torch.distributions import Normal, kl_divergence
 
 from common import cli, diagnostics, her
 from common.gae import compute_gae
-from common.grasped_start import GraspedStart
-from common.her import HerReplayBuffer, ReplayBuffer, goal_task_reward, sample_replay
+from common.her import HerReplayBuffer, goal_task_reward, sparse_return_range
 from common.normalizer import InputNormalizer, RewardScaler
+from common.replay import ReplayBuffer, buffer_refusal, sample_replay
 from common.rollout import collect_rollout, make_vector_env
 from common.run import Run, RunArgs
 
 cli.register_goal_tasks()
 torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
 BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
-HARD_FETCH = dict(hidden=256, target_std=1.0, normalization="paper", action_l2=1.0,
-                  twin_critic=True)  # each one measured on FetchPush: results.md  # fmt: skip
-TASK_DEFAULTS = {"FetchPush-v4": HARD_FETCH,  # flags win; sigma per x, y, z, gripper: results.md
-    "FetchPickAndPlace-v4": HARD_FETCH | dict(grasped_start=0.5, target_std=(1.0, 1.0, 1.0, 0.3)),
-    "FetchSlide-v4": HARD_FETCH | dict(target_std=(0.3, 0.3, 0.3, 1.0), action_l2=0.0,
-                                       bounds_loss=1.0, anneal_lr=True)}  # fmt: skip
 
 
 @dataclass
-class Args(RunArgs):
-    """IPG with HER (docs/ipg_her.md); Push, PickAndPlace, Slide: defaults of their own."""
+class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
+    """IPG with HER, the paper's (docs/ipg_her.md); the hard tasks' recipe: ipg_her_recipe.py."""
 
     env_id: str = "FetchReach-v4"
     """the id of the gymnasium environment"""
@@ -57,7 +50,7 @@ class Args(RunArgs):
     learning_rate: float = 1e-3
     """the learning rate of Adam (ipg_her.py: 1e-3, OpenAI's HER recipe)"""
     anneal_lr: bool = False
-    """anneal the learning rate linearly to zero (ipg_her.py: the critic's too; Slide's default)"""
+    """anneal the learning rate linearly to zero"""
     gamma: float = 0.98
     """the discount factor gamma (ipg_her.py: 0.98, OpenAI's HER recipe)"""
     gae_lambda: float = 0.95
@@ -72,8 +65,6 @@ class Args(RunArgs):
     """d_targ, the mean KL per update the beta rule aims for (ipg_her.py: 0.1, for nu = 1)"""
     beta_init: float = 1.0
     """initial KL penalty coefficient beta (the PPO paper: insensitive)"""
-    kl_early_stop: float | None = None
-    """stop an update's epochs once the mean KL exceeds this many times kl_target (None: never)"""
     init_log_std: float = 0.0
     """initial log std of the Gaussian policy (ipg_her.py: 0, goals need wide exploration)"""
     vf_coef: float = 0.5
@@ -116,41 +107,36 @@ class Args(RunArgs):
     """soft target update rate of eq. 6, after every critic step (ipg_her.py: 0.05, OpenAI's HER)"""
     learning_starts: int = 100
     """environment steps before the critic, and what uses it, starts"""
-    target_std: float | tuple[float, ...] | None = None
-    """the sigma rule: hold H(pi) at H(N(0, target_std^2)) per action, or one each (None: off)"""
-    grasped_start: float = 0.0
-    """share of training episodes started with the object in the gripper (the HER paper's 0.5)"""
-    action_l2: float = 0.0
-    """weight of the penalty mean(mu(s)^2) beside the off-policy term (OpenAI's HER: 1)"""
-    bounds_loss: float = 0.0
-    """weight of the penalty mean((mu(s) beyond the action bounds)^2) (rl_games' bounds loss)"""
-    twin_critic: bool = False
-    """two critics, the target the smaller of their Q_w' (TD3's clipped double Q)"""
-    critic_target: Literal["mean", "sample"] = "mean"
-    """the critic's target at a' = mu(s') (DDPG's) or at one a' ~ pi(s') (SAC's, no entropy term)"""
-    clip_q_target: bool = True
-    """goal tasks with Fetch's 0/-1 reward: clip critic targets to [-1/(1-gamma), 0]"""
-
-    # HER arguments (goal tasks only)
-    her: bool = True
-    """relabel replayed transitions with hindsight goals (goal tasks only)"""
-    her_n_sampled_goal: int = 4
-    """k: relabelled transitions per real one (relabelled share 1 - 1/(k+1))"""
-    her_goal_selection_strategy: Literal["future", "final", "episode"] = "future"
-    """where relabelled goals come from: later in the episode, its end, or anywhere in it"""
 
 
 def check_args(args: Args, argv: list[str]) -> None:
-    """Bad input fails here, before anything runs (the shared checks: ``common/cli.py``)."""
-    goal_task = cli.check_common(args)
-    cli.check_her(args, argv, goal_task)  # nu, ignored flags, the critic's, HER's, grasped starts
+    """Bad input fails here, before anything runs: one ``error:`` line (``common/cli.py``)."""
+    goal_task = cli.check_common(args)  # the checks every script needs
+    cli.check_range(args, "nu", 0.0, 1.0)
+    cli.check_non_negative(args, "critic_steps", "learning_starts")
+    critic_flags = ("--critic-learning-rate --critic-batch-size --critic-steps --tau --buffer-size "
+                    "--learning-starts --q-bar --off-policy-states --off-policy-batch-size "
+                    "--normalization --diagnostics-every")  # fmt: skip
+    cli.refuse_ignored(argv, her.ignored(args, args.env_id, goal_task) | cli.ignored(
+        (not args.norm_adv, "--normalization", "--no-norm-adv: nothing to normalise"),
+        (args.off_policy_states == "batch", "--off-policy-batch-size", "--off-policy-states batch"),
+        (args.nu == 1 and args.use_cv, "--use-cv", "at --nu 1 its on-policy term has weight 0"),
+        (args.nu == 0 and not args.use_cv, f"{critic_flags} {her.FLAGS}",
+         "at --nu 0 without --use-cv no term uses the critic"),
+    ))  # fmt: skip
+    cli.check_positive(args, "critic_learning_rate", "critic_batch_size", "buffer_size")
+    cli.check_positive(args, "hidden", "off_policy_batch_size")
+    cli.check_range(args, "tau", 0.0, 1.0, open_low=True)
+    cli.refuse(buffer_refusal(args.buffer_size, args.num_envs, args.env_id))
+    cli.refuse(her.check(args, args.env_id, goal_task))  # and on a task without goals: HER is off
+    if args.env_id in ("FetchPush-v4", "FetchPickAndPlace-v4", "FetchSlide-v4"):
+        print(f"{args.env_id}: the paper's IPG+HER; the recipe it needs: ipg_her_recipe.py")
 
 
 # ENV SETUP
-def make_env(env_id: str, grasped_start: float = 0.0):
+def make_env(env_id: str):
     def thunk():
         env = gym.make(env_id)  # a goal task keeps its Dict: HER needs the goals apart
-        env = GraspedStart(env, grasped_start) if grasped_start else env  # HER's sec. 4.1
         return gym.wrappers.RecordEpisodeStatistics(env)
 
     return thunk
@@ -178,8 +164,7 @@ class Agent(nn.Module):
             layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
             layer_init(nn.Linear(hidden, act_dim), std=0.01),
         )  # fmt: skip
-        # state-independent log std
-        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))
+        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))  # independent of s
 
     def actor_parameters(self) -> list[nn.Parameter]:
         return [*self.actor_mean.parameters(), self.actor_logstd]
@@ -193,23 +178,20 @@ class Agent(nn.Module):
 
 
 class QNetwork(nn.Module):
-    """Critic Q_w(s, a) of the executed (clipped) action; ``twin``: TD3's second (Fujimoto 2018)."""
+    """Critic Q_w(s, a) of the executed action: a clipped to the action bounds, as the env does."""
 
-    def __init__(self, obs_dim, act_dim, hidden=128, low=-np.inf, high=np.inf, twin=False):
+    def __init__(self, obs_dim, act_dim, hidden=128, low=-np.inf, high=np.inf):
         super().__init__()
-        self.net, *twin_net = [nn.Sequential(
+        self.net = nn.Sequential(
             nn.Linear(obs_dim + act_dim, hidden), nn.ReLU(),
             nn.Linear(hidden, hidden), nn.ReLU(),
             nn.Linear(hidden, 1),
-        ) for _ in range(1 + twin)]  # fmt: skip
-        self.twin = nn.ModuleList(twin_net)  # empty without twin
+        )  # fmt: skip
         self.register_buffer("low", torch.as_tensor(low, dtype=torch.float32).expand(act_dim))
         self.register_buffer("high", torch.as_tensor(high, dtype=torch.float32).expand(act_dim))
 
-    def forward(self, x: torch.Tensor, a: torch.Tensor, both: bool = False):  # both: [Q_1, Q_2]
-        xa = torch.cat([x, torch.clamp(a, self.low, self.high)], -1)  # the executed action
-        qs = [net(xa).squeeze(-1) for net in (self.net, *self.twin)[: 2 if both else 1]]
-        return qs if both else qs[0]
+    def forward(self, x: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([x, torch.clamp(a, self.low, self.high)], -1)).squeeze(-1)
 
 
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
@@ -235,23 +217,21 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
 
 # ALGO LOGIC: the critic step: DDPG's TD learning, eq. 6's soft target update
 def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent,
-                data: dict, gamma: float, tau: float, target_range=None, sample=False):  # fmt: skip
+                data: dict, gamma: float, tau: float, target_range=None):  # fmt: skip
     """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
-    with torch.no_grad():  # Q_w'(s', a'), a' = mu(s') or a' ~ pi(s'); twin: the smaller (TD3)
-        a = agent.dist(data["next_obs"]).sample() if sample else agent.actor_mean(data["next_obs"])
-        next_q = torch.stack(qf_target(data["next_obs"], a, True))
-        target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q.min(0).values
-        if target_range is not None:
-            target = target.clamp(*target_range)  # the returns the rewards allow (OpenAI's HER)
-    qs = qf(data["obs"], data["actions"], both=True)
-    loss = sum(0.5 * ((q - target) ** 2).mean() for q in qs)  # twin: each network its own
+    with torch.no_grad():  # Q_w'(s', mu(s'))
+        next_q = qf_target(data["next_obs"], agent.actor_mean(data["next_obs"]))
+        target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q
+        target = target.clamp(*target_range) if target_range else target  # OpenAI's HER
+    q = qf(data["obs"], data["actions"])
+    loss = 0.5 * ((q - target) ** 2).mean()
     q_optimizer.zero_grad()
     loss.backward()
     q_optimizer.step()
     with torch.no_grad():
         for p, p_target in zip(qf.parameters(), qf_target.parameters(), strict=True):
             p_target.lerp_(p, tau)  # w' <- tau w + (1 - tau) w'   (eq. 6)
-    return loss.item(), qs[0].mean().item()
+    return loss.item(), q.mean().item()
 
 
 # ALGO LOGIC: the control variate (eq. 9)
@@ -291,9 +271,8 @@ def learning_signal(b: dict, args: Args):
 
 # ALGO LOGIC: the IPG update (eq. 10) on the PPO-KL surrogate (eq. 5)
 def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args,
-               qf: QNetwork | None = None, replay=None, alpha=0.0):  # fmt: skip
-    """``update_epochs`` passes of Adam on eq. 10 inside eq. 5, then the beta rule; s ~ beta: the
-    minibatch's states or ``replay(n)``'s. nu = 0 without control variate: ``ppo_kl_update``."""
+               qf: QNetwork | None = None, replay=None):  # fmt: skip
+    """Eq. 10 inside eq. 5: ``update_epochs`` passes of Adam, then the beta rule."""
     batch_size = b["obs"].shape[0]
     minibatch_size = batch_size // args.num_minibatches
     adv, signal_std, off_weight, off_scale = learning_signal(b, args)
@@ -303,8 +282,7 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
     pi_old = Normal(b["mean"], b["std"])
     actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
     for epoch in range(args.update_epochs):
-        # shuffle once per epoch: the minibatches are then slices (views), not gathers
-        perm = torch.randperm(batch_size)
+        perm = torch.randperm(batch_size)  # once per epoch: the minibatches are then views
         keys = ("obs", "actions", "logprobs", "mean", "std", "returns")
         shuffled = {key: b[key][perm] for key in keys} | {"adv": adv[perm]}
         for start in range(0, batch_size, minibatch_size):
@@ -315,23 +293,12 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
             on_term, off_term = ipg_loss(agent, qf, pi, mb, mb["adv"] if args.nu < 1 else None,
                                          s_off, args.q_bar)  # fmt: skip
             pg_loss = beta * kl + (1.0 - args.nu) * on_term + off_weight * off_scale * off_term
-            if s_off is not None and (args.action_l2 or args.bounds_loss):  # mu(s) in the bounds
-                mu = agent.actor_mean(s_off)  # OpenAI's HER: l2 mu(s)^2; rl_games: beyond bounds
-                beyond = mu - mu.clamp(qf.low, qf.high)  # zero inside: there Q_w's gradient lives
-                pg_loss += args.action_l2 * (mu**2).mean() + args.bounds_loss * (beyond**2).mean()
-            h = pi.entropy().mean(0) if np.ndim(alpha) else pi.entropy().sum(-1).mean()
-            pg_loss = pg_loss - (h.new_tensor(alpha) * h).sum()  # the sigma rule's bonus
             v_loss = 0.5 * ((agent.get_value(mb["obs"]) - mb["returns"]) ** 2).mean()
             optimizer.zero_grad()
             (pg_loss + args.vf_coef * v_loss).backward()
             nn.utils.clip_grad_norm_(actor_params, args.max_grad_norm)  # policy and
             nn.utils.clip_grad_norm_(critic_params, args.max_grad_norm)  # V apart
             optimizer.step()
-        if args.kl_early_stop is not None:
-            with torch.no_grad():
-                d = kl_divergence(pi_old, agent.dist(b["obs"])).sum(-1).mean().item()
-            if d > args.kl_early_stop * args.kl_target:
-                break
     with torch.no_grad():
         pi = agent.dist(b["obs"])
         d = kl_divergence(pi_old, pi).sum(-1).mean().item()  # d: mean KL[pi_old || pi]
@@ -340,7 +307,7 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
              "losses/approx_kl": d, "losses/beta": beta, "losses/epochs": epoch + 1,
              "charts/policy_entropy": entropy, "ipg/signal_std": signal_std.item(),
              "ipg/on_policy_term": on_term.item(), "ipg/nu": args.nu,
-             "ipg/off_policy_term": off_term.item(), "ipg/alpha": np.mean(alpha)}  # fmt: skip
+             "ipg/off_policy_term": off_term.item()}  # fmt: skip
     if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
         beta /= 2
     elif d > args.kl_target * 1.5:
@@ -348,23 +315,15 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
     return min(max(beta, BETA_MIN), BETA_MAX), stats
 
 
-def sigma_rule(alpha, entropy: float, log_std: np.ndarray, target_std):
-    """SAC's alpha rule (Haarnoja 2018, eq. 18), two-sided: alpha += 0.01 (H_target - H(pi))."""
-    if np.ndim(target_std):  # H(N(0, t_i^2)) - H(pi_i) = log t_i - log sigma_i
-        return alpha + 0.01 * (np.log(target_std) - log_std)
-    h_target = len(log_std) * (0.5 * np.log(2 * np.pi * np.e) + np.log(target_std))
-    return alpha + 0.01 * (h_target - entropy)
-
-
 if __name__ == "__main__":
-    args = cli.parse_args(Args, task_defaults=TASK_DEFAULTS, ignored=cli.ipg_ignored)
+    args = cli.parse_args(Args)
     check_args(args, sys.argv[1:])
     batch_size = args.num_envs * args.num_steps
     num_iterations = args.total_timesteps // batch_size
     run = Run(args)  # TRY NOT TO MODIFY: run folder, TensorBoard, seeding (common/run.py)
 
     # ENV SETUP
-    envs = make_vector_env(make_env(args.env_id, args.grasped_start), args.num_envs)
+    envs = make_vector_env(make_env(args.env_id), args.num_envs)
     space = envs.single_observation_space
     goal_dim = space["desired_goal"].shape[0] if isinstance(space, gym.spaces.Dict) else 0
     obs_dim = space["observation"].shape[0] if goal_dim else space.shape[0]
@@ -376,31 +335,29 @@ if __name__ == "__main__":
     optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
     norm = InputNormalizer(obs_dim, goal_dim)
     low, high = envs.single_action_space.low, envs.single_action_space.high
-    qf = QNetwork(obs_dim + goal_dim, act_dim, args.hidden, low, high, args.twin_critic)
+    qf = QNetwork(obs_dim + goal_dim, act_dim, args.hidden, low, high)
     qf_target = copy.deepcopy(qf)
     q_optimizer = optim.Adam(qf.parameters(), lr=args.critic_learning_rate, fused=True)
     rb = ReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, run.streams.replay_seed)
-    q_range = None  # the returns the reward allows, for clipping the critic's targets
+    q_range = None  # the returns the reward allows: the critic's targets are clipped to them
     if goal_dim:  # hindsight relabelling (Figure 2) needs the task's reward function
         compute_reward = goal_task_reward(args.env_id, args.her)
-        if args.clip_q_target:
-            q_range = her.sparse_return_range(compute_reward, goal_dim, args.gamma)
+        q_range = sparse_return_range(compute_reward, goal_dim, args.gamma)
         rb = HerReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, goal_dim,
                              compute_reward, args.her_n_sampled_goal if args.her else 0,
                              args.her_goal_selection_strategy, run.streams.replay_seed)  # fmt: skip
     replay = lambda n, rng=None: sample_replay(rb, norm, 1.0, args.off_policy_batch_size, n, rng)
     reward_scaler = RewardScaler(args.num_envs, args.gamma)
-    raw_obs, beta, alpha = run.start(
+    raw_obs, beta = run.start(
         envs, model=dict(agent=agent, normalizer=norm, qf=qf, qf_target=qf_target),
         training=dict(optimizer=optimizer, reward_scaler=reward_scaler,
-                      q_optimizer=q_optimizer, rb=rb), beta=args.beta_init, alpha=0.0)  # fmt: skip
+                      q_optimizer=q_optimizer, rb=rb), beta=args.beta_init)  # fmt: skip
 
     with run:  # TRY NOT TO MODIFY: Ctrl-C, kill or a NaN end the run cleanly
         for iteration in run.iterations(num_iterations):
             if args.anneal_lr:
                 frac = 1.0 - (iteration - 1.0) / num_iterations
                 optimizer.param_groups[0]["lr"] = frac * args.learning_rate
-                q_optimizer.param_groups[0]["lr"] = frac * args.critic_learning_rate
 
             # ALGO LOGIC: rollout
             ro, raw_obs, episodes = collect_rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
@@ -422,8 +379,7 @@ if __name__ == "__main__":
                 for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size,
                                           args.critic_steps):  # fmt: skip
                     q_loss, q_mean = critic_step(qf, qf_target, q_optimizer, agent, data,
-                                                 args.gamma, args.tau, target_range,
-                                                 args.critic_target == "sample")  # fmt: skip
+                                                 args.gamma, args.tau, target_range)  # fmt: skip
                 run.log({"losses/critic_loss": q_loss, "losses/q_values": q_mean})
 
             # ALGO LOGIC: advantages (eq. 3-4) and the control variate (eq. 9)
@@ -433,18 +389,12 @@ if __name__ == "__main__":
                 run.log({"ipg/cv_mean": b["cv"].mean().item()})
             diagnose = args.diagnostics_every and (iteration - 1) % args.diagnostics_every == 0
             if learning and diagnose:  # DIAGNOSTICS: the mixture, before the update (ipg/*)
-                off_states = b["obs"] if args.off_policy_states == "batch" else replay(
-                    1, run.diagnostics_rng)[0]["obs"]  # fmt: skip
-                cv = b["cv"] if args.use_cv else control_variate(qf, agent, b["obs"], b["actions"])
-                measured = diagnostics.interpolation_report(agent, qf, b, cv, args, off_states,
-                    ipg_loss, learning_signal, run.diagnostics_generator)  # fmt: skip
+                measured = diagnostics.interpolation_report(agent, qf, b, args, replay, run,
+                    control_variate, ipg_loss, learning_signal)  # fmt: skip
                 run.log({f"ipg/{key}": value for key, value in measured.items()})
 
             # ALGO LOGIC: the IPG update (eq. 10 on eq. 5)
             beta, stats = ipg_update(agent, optimizer, b, beta, args, qf if learning else None,
-                                     replay, alpha)  # fmt: skip
+                                     replay)  # fmt: skip
             stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}
-            if args.target_std is not None:  # the sigma rule: SAC's eq. 18, two-sided (docs)
-                log_std = agent.actor_logstd.detach().numpy()[0]
-                alpha = sigma_rule(alpha, stats["charts/policy_entropy"], log_std, args.target_std)
-            run.end_iteration(stats, beta=beta, alpha=alpha)  # TRY NOT TO MODIFY: log, save
+            run.end_iteration(stats, beta=beta)  # TRY NOT TO MODIFY: log, evaluate, save

@@ -114,8 +114,7 @@ class Agent(nn.Module):
             layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
             layer_init(nn.Linear(hidden, act_dim), std=0.01),
         )  # fmt: skip
-        # state-independent log std
-        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))
+        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))  # independent of s
 
     def actor_parameters(self) -> list[nn.Parameter]:
         return [*self.actor_mean.parameters(), self.actor_logstd]
@@ -161,8 +160,7 @@ def ppo_kl_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float
     pi_old = Normal(b["mean"], b["std"])
     actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
     for epoch in range(args.update_epochs):
-        # shuffle once per epoch: the minibatches are then slices (views), not gathers
-        perm = torch.randperm(batch_size)
+        perm = torch.randperm(batch_size)  # once per epoch: the minibatches are then views
         keys = ("obs", "actions", "logprobs", "mean", "std", "returns")
         shuffled = {key: b[key][perm] for key in keys} | {"adv": adv[perm]}
         for start in range(0, batch_size, minibatch_size):

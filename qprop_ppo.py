@@ -27,8 +27,8 @@ from torch.distributions import Normal, kl_divergence
 
 from common import cli, diagnostics
 from common.gae import compute_gae
-from common.her import ReplayBuffer, sample_replay
 from common.normalizer import RewardScaler, RunningMeanStd
+from common.replay import ReplayBuffer, buffer_refusal, sample_replay
 from common.rollout import collect_rollout, make_vector_env
 from common.run import Run, RunArgs
 
@@ -67,8 +67,6 @@ class Args(RunArgs):
     """d_targ, the mean KL per update the beta rule aims for (ipg_her.py: 0.1, for nu = 1)"""
     beta_init: float = 1.0
     """initial KL penalty coefficient beta (the PPO paper: insensitive)"""
-    kl_early_stop: float | None = None
-    """stop an update's epochs once the mean KL exceeds this many times kl_target (None: never)"""
     init_log_std: float = -0.5
     """initial log std of the Gaussian policy (ipg_her.py: 0, goals need wide exploration)"""
     vf_coef: float = 0.5
@@ -102,15 +100,22 @@ class Args(RunArgs):
     """soft target update rate of eq. 6, after every critic step (ipg_her.py: 0.05, OpenAI's HER)"""
     learning_starts: int = 1000
     """environment steps before the critic, and what uses it, starts"""
-    twin_critic: bool = False
-    """two critics, the target the smaller of their Q_w' (TD3's clipped double Q)"""
 
 
 def check_args(args: Args, argv: list[str]) -> None:
-    """Bad input fails here, before anything runs (the shared checks: ``common/cli.py``)."""
-    cli.check_common(args)
-    cli.refuse_ignored(argv, cli.qprop_ignored(args))  # e.g. the critic's with --eta-mode none
-    cli.check_critic(args)
+    """Bad input fails here, before anything runs: one ``error:`` line (``common/cli.py``)."""
+    cli.check_common(args)  # the checks every script needs
+    cli.check_non_negative(args, "critic_steps", "learning_starts")
+    critic_flags = ("--critic-learning-rate --critic-batch-size --critic-steps --tau --buffer-size "
+                    "--learning-starts --critic-hidden --normalization")  # fmt: skip
+    cli.refuse_ignored(argv, cli.ignored(
+        (not args.norm_adv, "--normalization", "--no-norm-adv: nothing to normalise"),
+        (args.eta_mode == "none", critic_flags, "--eta-mode none trains no critic"),
+    ))  # fmt: skip
+    cli.check_positive(args, "critic_learning_rate", "critic_batch_size", "buffer_size")
+    cli.check_positive(args, "critic_hidden")
+    cli.check_range(args, "tau", 0.0, 1.0, open_low=True)
+    cli.refuse(buffer_refusal(args.buffer_size, args.num_envs, args.env_id))
 
 
 # ENV SETUP
@@ -146,8 +151,7 @@ class Agent(nn.Module):
             layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
             layer_init(nn.Linear(hidden, act_dim), std=0.01),
         )  # fmt: skip
-        # state-independent log std
-        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))
+        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))  # independent of s
 
     def actor_parameters(self) -> list[nn.Parameter]:
         return [*self.actor_mean.parameters(), self.actor_logstd]
@@ -161,23 +165,20 @@ class Agent(nn.Module):
 
 
 class QNetwork(nn.Module):
-    """Critic Q_w(s, a) of the executed (clipped) action; ``twin``: TD3's second (Fujimoto 2018)."""
+    """Critic Q_w(s, a) of the executed action: a clipped to the action bounds, as the env does."""
 
-    def __init__(self, obs_dim, act_dim, hidden=128, low=-np.inf, high=np.inf, twin=False):
+    def __init__(self, obs_dim, act_dim, hidden=128, low=-np.inf, high=np.inf):
         super().__init__()
-        self.net, *twin_net = [nn.Sequential(
+        self.net = nn.Sequential(
             nn.Linear(obs_dim + act_dim, hidden), nn.ReLU(),
             nn.Linear(hidden, hidden), nn.ReLU(),
             nn.Linear(hidden, 1),
-        ) for _ in range(1 + twin)]  # fmt: skip
-        self.twin = nn.ModuleList(twin_net)  # empty without twin
+        )  # fmt: skip
         self.register_buffer("low", torch.as_tensor(low, dtype=torch.float32).expand(act_dim))
         self.register_buffer("high", torch.as_tensor(high, dtype=torch.float32).expand(act_dim))
 
-    def forward(self, x: torch.Tensor, a: torch.Tensor, both: bool = False):  # both: [Q_1, Q_2]
-        xa = torch.cat([x, torch.clamp(a, self.low, self.high)], -1)  # the executed action
-        qs = [net(xa).squeeze(-1) for net in (self.net, *self.twin)[: 2 if both else 1]]
-        return qs if both else qs[0]
+    def forward(self, x: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([x, torch.clamp(a, self.low, self.high)], -1)).squeeze(-1)
 
 
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
@@ -205,18 +206,18 @@ def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae
 def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent,
                 data: dict, gamma: float, tau: float) -> tuple[float, float]:  # fmt: skip
     """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
-    with torch.no_grad():  # Q_w'(s', mu(s')); twin: the smaller of the two (TD3)
-        next_q = torch.stack(qf_target(data["next_obs"], agent.actor_mean(data["next_obs"]), True))
-        target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q.min(0).values
-    qs = qf(data["obs"], data["actions"], both=True)
-    loss = sum(0.5 * ((q - target) ** 2).mean() for q in qs)  # twin: each network its own
+    with torch.no_grad():  # Q_w'(s', mu(s'))
+        next_q = qf_target(data["next_obs"], agent.actor_mean(data["next_obs"]))
+        target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q
+    q = qf(data["obs"], data["actions"])
+    loss = 0.5 * ((q - target) ** 2).mean()
     q_optimizer.zero_grad()
     loss.backward()
     q_optimizer.step()
     with torch.no_grad():
         for p, p_target in zip(qf.parameters(), qf_target.parameters(), strict=True):
             p_target.lerp_(p, tau)  # w' <- tau w + (1 - tau) w'   (eq. 6)
-    return loss.item(), qs[0].mean().item()
+    return loss.item(), q.mean().item()
 
 
 # ALGO LOGIC: the control variate (eq. 9) and its weight eta
@@ -282,8 +283,7 @@ def qprop_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float,
     pi_old = Normal(b["mean"], b["std"])
     actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
     for epoch in range(args.update_epochs):
-        # shuffle once per epoch: the minibatches are then slices (views), not gathers
-        perm = torch.randperm(batch_size)
+        perm = torch.randperm(batch_size)  # once per epoch: the minibatches are then views
         keys = ("obs", "actions", "logprobs", "mean", "std", "returns")
         shuffled = {key: b[key][perm] for key in keys} | {"adv": adv[perm], "eta": eta[perm]}
         for start in range(0, batch_size, minibatch_size):
@@ -298,11 +298,6 @@ def qprop_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float,
             nn.utils.clip_grad_norm_(actor_params, args.max_grad_norm)  # policy and
             nn.utils.clip_grad_norm_(critic_params, args.max_grad_norm)  # V apart
             optimizer.step()
-        if args.kl_early_stop is not None:
-            with torch.no_grad():
-                d = kl_divergence(pi_old, agent.dist(b["obs"])).sum(-1).mean().item()
-            if d > args.kl_early_stop * args.kl_target:
-                break
     with torch.no_grad():
         pi = agent.dist(b["obs"])
         d = kl_divergence(pi_old, pi).sum(-1).mean().item()  # d: mean KL[pi_old || pi]
@@ -335,7 +330,7 @@ if __name__ == "__main__":
     optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
     norm = RunningMeanStd((obs_dim,))
     low, high = envs.single_action_space.low, envs.single_action_space.high
-    qf = QNetwork(obs_dim, act_dim, args.critic_hidden, low, high, args.twin_critic)
+    qf = QNetwork(obs_dim, act_dim, args.critic_hidden, low, high)
     qf_target = copy.deepcopy(qf)
     q_optimizer = optim.Adam(qf.parameters(), lr=args.critic_learning_rate, fused=True)
     rb = ReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, run.streams.replay_seed)
@@ -364,8 +359,8 @@ if __name__ == "__main__":
 
             # ALGO LOGIC: the critic first (eq. 6; Q-Prop's Algorithm 1), so that the control
             # variate and the critic's term in the update see the new data
-            learning = global_step >= args.learning_starts and rb.num_sampleable() > 0
-            learning = learning and args.eta_mode != "none"
+            learning = args.eta_mode != "none" and global_step >= args.learning_starts
+            learning = learning and rb.num_sampleable() > 0
             if learning and args.critic_steps > 0:
                 for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size,
                                           args.critic_steps):  # fmt: skip

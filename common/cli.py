@@ -21,9 +21,6 @@ import gymnasium as gym
 import numpy as np
 import tyro
 
-from common import grasped_start
-from common.her import hindsight_refusal
-
 A = TypeVar("A")
 
 
@@ -127,6 +124,12 @@ def check_positive(args, *names: str) -> None:
             fail(f"{flag(name)} must be positive, got {getattr(args, name)}")
 
 
+def check_non_negative(args, *names: str) -> None:
+    for name in names:
+        if getattr(args, name) < 0:
+            fail(f"{flag(name)} must be non-negative, got {getattr(args, name)}")
+
+
 def check_range(args, name: str, low: float, high: float, open_low: bool = False) -> None:
     """``args.name`` in [low, high], or (low, high] with ``open_low``."""
     value = getattr(args, name)
@@ -175,104 +178,24 @@ def check_common(args) -> bool:
     return goal_task
 
 
+def refuse(why: str | None) -> None:
+    """Fail with ``why``, the reason a module gives for refusing the input (None: no refusal)."""
+    if why:
+        fail(why)
+
+
+def ignored(*rules: tuple[bool, str, str]) -> dict[str, str]:
+    """``{flag: why}`` from the rules ``(when, "--flag --other-flag", why)`` that hold: the flags a
+    run would ignore (a later rule's why wins)."""
+    return {flag: why for when, flags, why in rules if when for flag in flags.split()}
+
+
 def refuse_ignored(argv: list[str], ignored: dict[str, str]) -> None:
     """A flag given on the command line that would change nothing fails: ``{flag: why}``; any
     spelling of it (``--a_b``, ``--no-a``, ``--a=1``) too."""
     for name, typed in given(argv).items():
         if flag(name) in ignored:
             fail(f"{typed} would be ignored ({ignored[flag(name)]}): leave it out")
-
-
-CRITIC_FLAGS = (
-    "--critic-learning-rate",
-    "--critic-batch-size",
-    "--critic-steps",
-    "--tau",
-    "--buffer-size",
-    "--learning-starts",
-    "--twin-critic",
-)  # Q-Prop's and IPG's
-
-
-def qprop_ignored(args) -> dict[str, str]:
-    """Q-Prop's flags that would change nothing, given the others: ``{flag: why}``."""
-    ignored = {} if args.norm_adv else {"--normalization": "--no-norm-adv: nothing to normalise"}
-    if args.eta_mode == "none":  # eta = 0: no control variate, no analytic term, no critic
-        why = "--eta-mode none trains no critic"
-        ignored |= dict.fromkeys((*CRITIC_FLAGS, "--critic-hidden", "--normalization"), why)
-    return ignored
-
-
-def ipg_ignored(args, goal_task: bool = True) -> dict[str, str]:
-    """IPG's flags that would change nothing, given the others (``{flag: why}``): HER's without
-    goals, with --no-her or (the strategy) at k = 0; the replay batch size with on-policy states;
-    ``--normalization`` without advantage normalisation; the control variate at nu = 1 (the
-    on-policy term it enters has weight 0); and everything of the critic's, the replay's and
-    the diagnostics' at nu = 0 without control variate, where no term uses the critic."""
-    her_flags = ("--her", "--her-n-sampled-goal", "--her-goal-selection-strategy")
-    ignored = {} if args.norm_adv else {"--normalization": "--no-norm-adv: nothing to normalise"}
-    if not goal_task:
-        ignored |= dict.fromkeys(
-            (*her_flags, "--clip-q-target"), f"{args.env_id} is not a goal task"
-        )
-    elif not args.her:
-        ignored |= dict.fromkeys(her_flags[1:], "--no-her")
-    elif args.her_n_sampled_goal == 0:
-        ignored["--her-goal-selection-strategy"] = "--her-n-sampled-goal 0 relabels no goal"
-    if args.off_policy_states == "batch":
-        ignored["--off-policy-batch-size"] = "--off-policy-states batch"
-    if args.nu == 1 and args.use_cv:
-        ignored["--use-cv"] = "at --nu 1 the on-policy term, which carries it, has weight 0"
-    if args.nu == 0 and not args.use_cv:
-        off_policy = ("--q-bar", "--off-policy-states", "--off-policy-batch-size",
-                      "--normalization", "--action-l2", "--bounds-loss", "--critic-target",
-                      "--clip-q-target", "--diagnostics-every", *her_flags)  # fmt: skip
-        why = "at --nu 0 without --use-cv no term uses the critic"
-        ignored |= dict.fromkeys((*CRITIC_FLAGS, *off_policy), why)
-    return ignored
-
-
-def check_her(args, argv: list[str], goal_task: bool) -> None:
-    """IPG's flags that would be ignored (``ipg_ignored``) are refused, and so are nu outside
-    [0, 1], a negative k or penalty, bad critic settings (``check_critic``), a target sigma not
-    positive or not one per action dimension, a non-positive replay batch, HER on a task it
-    cannot serve, and grasped starts outside [0, 1] or where nothing can be grasped. A task
-    without goals is said to train without HER."""
-    check_range(args, "nu", 0.0, 1.0)
-    for name in ("her_n_sampled_goal", "action_l2", "bounds_loss"):
-        if getattr(args, name) < 0:
-            fail(f"{flag(name)} must be non-negative, got {getattr(args, name)}")
-    refuse_ignored(argv, ipg_ignored(args, goal_task))
-    check_critic(args)
-    check_positive(args, "off_policy_batch_size")
-    stds = () if args.target_std is None else tuple(np.atleast_1d(args.target_std))
-    if min(stds, default=1.0) <= 0:
-        fail(f"--target-std must be positive, got {' '.join(map(str, stds))}")
-    if args.target_std is not None and len(stds) != 1:  # none (a bare --target-std) or several
-        if len(stds) != (dims := gym.make(args.env_id).action_space.shape[0]):
-            fail(f"--target-std takes one sigma or one per action dimension ({dims} on "
-                 f"{args.env_id}), not {len(stds)}")  # fmt: skip
-    if goal_task and args.her and (why := hindsight_refusal(args.env_id)):
-        fail(why)
-    check_range(args, "grasped_start", 0.0, 1.0)
-    if args.grasped_start and (why := grasped_start.refusal(args.env_id)):
-        fail(why)
-    if not goal_task:
-        print(f"{args.env_id} has no goals: hindsight relabelling (HER) is off", flush=True)
-
-
-def check_critic(args) -> None:
-    """The checks of an off-policy critic's settings (Q-Prop's and IPG's)."""
-    check_positive(args, "critic_batch_size", "buffer_size", "critic_learning_rate")
-    check_positive(args, *(name for name in ("hidden", "critic_hidden") if hasattr(args, name)))
-    check_range(args, "tau", 0.0, 1.0, open_low=True)
-    for name in ("critic_steps", "learning_starts"):
-        if getattr(args, name) < 0:
-            fail(f"{flag(name)} must be non-negative, got {getattr(args, name)}")
-    rows, longest = args.buffer_size // args.num_envs, gym.spec(args.env_id).max_episode_steps
-    if longest and rows < longest:  # replay samples finished episodes only
-        fail(f"--buffer-size {args.buffer_size} keeps {rows} steps per env, less than one "
-             f"{args.env_id} episode ({longest} steps); enlarge it")  # fmt: skip
 
 
 def current_version(env_id: str) -> str | None:

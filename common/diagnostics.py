@@ -53,14 +53,29 @@ def explained_variance(values: torch.Tensor, returns: torch.Tensor) -> float:
     return (1 - (returns - values).var() / (returns.var() + 1e-8)).item()
 
 
-def interpolation_report(agent, qf, b: dict, cv, args, off_states, ipg_loss: Callable,
-                         learning_signal: Callable, generator=None, chunks=4) -> dict:  # fmt: skip
+def interpolation_report(
+    agent,
+    qf,
+    b: dict,
+    args,
+    replay: Callable,
+    run,
+    control_variate: Callable,
+    ipg_loss: Callable,
+    learning_signal: Callable,
+    chunks=4,
+) -> dict:
     """IPG's update measured on its batch ``b`` before it runs (theta = theta_old), through the
-    script's own ``ipg_loss`` and ``learning_signal`` (its normalisation and weights): the norms
-    of the two weighted terms of the policy gradient, (1 - nu) g_on and b g_off, and
-    ``effective_nu`` = |off| / (|on| + |off|), the share the off-policy term really has; then
-    ``variance_report`` with eq. 8 at eta = 0 and 1 (raw advantage scale, Q_bar from the mean).
-    ``cv``: A_bar of the batch."""
+    script's own ``control_variate``, ``ipg_loss`` and ``learning_signal`` (its normalisation and
+    weights): the norms of the two weighted terms of the policy gradient, (1 - nu) g_on and
+    b g_off, and ``effective_nu`` = |off| / (|on| + |off|), the share the off-policy term really
+    has; then ``variance_report`` with eq. 8 at eta = 0 and 1 (raw advantage scale, Q_bar from
+    the mean). The off-policy states: the batch's, or one draw of ``replay(1, rng)``; random
+    draws from ``run``'s diagnostics streams."""
+    generator = run.diagnostics_generator
+    cv = b["cv"] if args.use_cv else control_variate(qf, agent, b["obs"], b["actions"])
+    off_states = b["obs"] if args.off_policy_states == "batch" else replay(
+        1, run.diagnostics_rng)[0]["obs"]  # fmt: skip
     params = agent.actor_parameters()
     signal, _, off_weight, off_scale = learning_signal(b, args)  # the update's own
     on_term, off_term = ipg_loss(agent, qf, agent.dist(b["obs"]), b, signal, off_states,

@@ -22,139 +22,59 @@ once and lets the relabelled share be exact:
 * ``terminated`` is stored as the environment reported it. FetchReach never terminates: its
   time-limit ends are truncations, which keep bootstrapping (the critic's target uses s_{t+1}).
 
-``ReplayBuffer`` is the plain episode replay underneath (Q-Prop's, and IPG's on tasks without
-goals); ``HerReplayBuffer`` adds the goals and the relabelling. With ``n_sampled_goal = 0`` it
-stores goals but replays every transition with its real goal (IPG's ``--no-her`` ablation).
-
-Storage is circular, ``(rows, num_envs, ...)``: one row per vector-env step, so the N envs of a
-gymnasium vector environment write side by side and every episode lies in one column. When the
-write position wraps round onto a stored episode, that whole episode stops being sampled, so
-``future`` goals never come from overwritten steps.
+``HerReplayBuffer`` is ``common/replay.py``'s episode replay plus the goals and the
+relabelling. With ``n_sampled_goal = 0`` it stores goals but replays every transition with its
+real goal (IPG's ``--no-her`` ablation).
 """
 
 from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
 
 import gymnasium as gym
 import numpy as np
-import torch
+
+from common.replay import ReplayBuffer
 
 GOAL_SELECTION_STRATEGIES = ("future", "final", "episode")
 
 
-class ReplayBuffer:
-    """Episode replay: transitions of finished episodes, sampled uniformly.
+@dataclass
+class HerArgs:
+    """HER's flags (goal tasks only), for a script's ``Args`` to inherit."""
 
-    Args:
-        buffer_size: transitions kept, over all envs.
-        num_envs: parallel environments writing one transition each per ``add``.
-        obs_dim, act_dim: sizes.
-        seed: of the sampling generator.
-    """
+    her: bool = True
+    """relabel replayed transitions with hindsight goals (goal tasks only)"""
+    her_n_sampled_goal: int = 4
+    """k: relabelled transitions per real one (relabelled share 1 - 1/(k+1))"""
+    her_goal_selection_strategy: Literal["future", "final", "episode"] = "future"
+    """where relabelled goals come from: later in the episode, its end, or anywhere in it"""
 
-    def __init__(self, buffer_size: int, num_envs: int, obs_dim: int, act_dim: int, seed=None):
-        self.rows, self.num_envs = buffer_size // num_envs, num_envs
-        self.rng = np.random.default_rng(seed)
-        shape = (self.rows, num_envs)
-        self.obs = np.zeros((*shape, obs_dim), np.float32)
-        self.next_obs = np.zeros((*shape, obs_dim), np.float32)
-        self.actions = np.zeros((*shape, act_dim), np.float32)
-        self.rewards = np.zeros(shape, np.float32)
-        self.terminations = np.zeros(shape, np.float32)
-        self.ep_start = np.zeros(shape, np.int64)  # row where the transition's episode starts
-        self.ep_length = np.zeros(shape, np.int64)  # its length once finished, 0 before
-        self.current_start = np.zeros(num_envs, np.int64)  # where each unfinished episode starts
-        self.current_length = np.zeros(num_envs, np.int64)
-        self.pos, self.filled = 0, 0  # next row to write, rows written so far (at most rows)
-        self._sampleable = None  # flat indices of sampleable transitions, cached between adds
 
-    def add(self, obs, actions, rewards, next_obs, terminations, truncations) -> None:
-        """Store one vector-env step: every argument has leading dimension ``num_envs``.
+FLAGS = "--her --her-n-sampled-goal --her-goal-selection-strategy"
 
-        ``next_obs`` is the real next observation (the final one where the episode ended, not
-        the reset observation a vector env returns in its place).
-        """
-        p = self.pos
-        for e in np.flatnonzero(self.ep_length[p] > 0):  # overwriting a stored episode: drop it
-            self.ep_length[
-                (self.ep_start[p, e] + np.arange(self.ep_length[p, e])) % self.rows, e
-            ] = 0
-        if np.any(self.current_length >= self.rows):
-            raise ValueError(
-                f"an episode is longer than the buffer's {self.rows} rows per env; "
-                "enlarge buffer_size"
-            )
-        self.obs[p], self.next_obs[p], self.actions[p] = obs, next_obs, actions
-        self.rewards[p], self.terminations[p] = rewards, terminations
-        self.ep_start[p], self.ep_length[p] = self.current_start, 0
-        self.current_length += 1
-        self.pos, self.filled = (p + 1) % self.rows, min(self.filled + 1, self.rows)
-        self._finish_episodes(np.logical_or(terminations, truncations))
 
-    def _finish_episodes(self, ended: np.ndarray) -> None:
-        """Open the current episodes of the envs where ``ended`` to sampling; the next ones start
-        at the write position."""
-        for e in np.flatnonzero(ended):
-            length = self.current_length[e]
-            self.ep_length[(self.current_start[e] + np.arange(length)) % self.rows, e] = length
-            self.current_start[e], self.current_length[e] = self.pos, 0
-        self._sampleable = None
+def ignored(args: HerArgs, env_id: str, goal_task: bool) -> dict[str, str]:
+    """HER's flags a run would ignore, ``{flag: why}``: all without goals, k and the strategy with
+    --no-her, the strategy at k = 0."""
+    her, k, strategy = FLAGS.split()
+    if not goal_task:
+        return dict.fromkeys((her, k, strategy), f"{env_id} is not a goal task")
+    if not args.her:
+        return dict.fromkeys((k, strategy), "--no-her")
+    if args.her_n_sampled_goal == 0:
+        return {strategy: "--her-n-sampled-goal 0 relabels no goal"}
+    return {}
 
-    def end_episodes(self) -> None:
-        """Open the unfinished episodes to sampling as if truncated now (a resumed run restarts
-        its environments, so they never go on); their last next_obs stays the bootstrap state."""
-        self._finish_episodes(self.current_length > 0)
 
-    def state_dict(self) -> dict:
-        """The stored rows, the write position and the sampler's state (for resuming a run)."""
-        arrays = {
-            k: v[: self.filled]
-            for k, v in vars(self).items()  # the (rows, envs) arrays
-            if isinstance(v, np.ndarray) and v.shape[:2] == (self.rows, self.num_envs)
-        }
-        return arrays | {"current_start": self.current_start.copy(),
-                         "current_length": self.current_length.copy(), "pos": self.pos,
-                         "filled": self.filled, "rng": self.rng.bit_generator.state}  # fmt: skip
-
-    def load_state_dict(self, state: dict) -> None:
-        for key, value in state.items():
-            if key.startswith("_"):  # a cache that files of earlier code could hold: rebuilt
-                continue
-            if key == "rng":
-                self.rng.bit_generator.state = value
-            elif isinstance(value, np.ndarray) and getattr(self, key).shape[1:] == value.shape[1:]:
-                getattr(self, key)[: len(value)] = value
-            elif isinstance(value, np.ndarray):
-                raise ValueError(f"replay state {key!r} has shape {value.shape}, this buffer "
-                                 f"{getattr(self, key).shape}")  # fmt: skip
-            else:
-                setattr(self, key, value)
-        self._sampleable = None
-
-    def sampleable(self) -> np.ndarray:
-        """Flat indices (row * num_envs + env) of the transitions of finished, kept episodes."""
-        if self._sampleable is None:
-            self._sampleable = np.flatnonzero(self.ep_length[: self.filled])
-        return self._sampleable
-
-    def num_sampleable(self) -> int:
-        return len(self.sampleable())
-
-    def _sample_rows(self, batch_size: int, rng: np.random.Generator):
-        flat = self.sampleable()
-        if len(flat) == 0:
-            raise ValueError("no finished episode stored yet")
-        return np.divmod(rng.choice(flat, batch_size), self.num_envs)
-
-    def sample(self, batch_size: int, rng: np.random.Generator | None = None) -> dict:
-        """Transitions of finished episodes, uniformly: ``obs, actions, rewards, next_obs,
-        terminations`` (the names of the stored arrays). ``rng``: draw from this generator
-        instead of the buffer's own (a measurement that must not move the training's stream)."""
-        rows, envs = self._sample_rows(batch_size, rng or self.rng)
-        return {
-            "obs": self.obs[rows, envs], "actions": self.actions[rows, envs],
-            "rewards": self.rewards[rows, envs].copy(), "next_obs": self.next_obs[rows, envs],
-            "terminations": self.terminations[rows, envs],
-        }  # fmt: skip
+def check(args: HerArgs, env_id: str, goal_task: bool) -> str | None:
+    """Why HER's flags cannot serve this run, or None: a negative k, or a goal task
+    ``hindsight_refusal`` refuses. On a task without goals, says that HER is off."""
+    if args.her_n_sampled_goal < 0:
+        return f"--her-n-sampled-goal must be non-negative, got {args.her_n_sampled_goal}"
+    if not goal_task:
+        print(f"{env_id} has no goals: hindsight relabelling (HER) is off", flush=True)
+    return hindsight_refusal(env_id) if goal_task and args.her else None
 
 
 class HerReplayBuffer(ReplayBuffer):
@@ -271,20 +191,3 @@ def sparse_return_range(compute_reward, goal_dim: int, gamma: float) -> tuple | 
     far = goal + np.array([[0.0], [1e3]])
     rewards = np.asarray(compute_reward(far, goal), np.float64)
     return (-1.0 / (1.0 - gamma), 0.0) if rewards.tolist() == [0.0, -1.0] else None
-
-
-def sample_replay(rb: ReplayBuffer, norm, reward_scale: float, batch_size: int,
-                  count: int = 1, rng=None) -> list[dict]:  # fmt: skip
-    """``count`` replay batches of tensors, inputs normalised, rewards scaled: one draw of
-    ``count * batch_size`` transitions, split (``rng``: a generator other than the buffer's)."""
-    data = rb.sample(batch_size * count, rng)
-    goal = data["desired_goal"] if norm.goal_task else None  # after HER's relabelling
-    tensors = {
-        "obs": norm.inputs(data["obs"], goal),
-        "next_obs": norm.inputs(data["next_obs"], goal),
-        "actions": torch.as_tensor(data["actions"]),
-        "rewards": torch.as_tensor(data["rewards"] * reward_scale),
-        "terminations": torch.as_tensor(data["terminations"]),
-    }
-    chunks = {key: t.split(batch_size) for key, t in tensors.items()}
-    return [{key: chunks[key][i] for key in chunks} for i in range(count)]

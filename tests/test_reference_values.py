@@ -10,7 +10,7 @@ are re-recorded only by a commit that changes the numbers on purpose, saying why
     python tests/test_reference_values.py --record [NAME ...]
 
 The ``recipe_*`` values were recorded from ``ipg_her.py`` at 011d14e, before the hard-task
-recipe moved into a variant file of its own, whose runs must log them still.
+recipe moved into its variant file ``ipg_her_recipe.py``, whose runs log them still.
 """
 
 import json
@@ -40,12 +40,12 @@ CONFIGS = {
                       "--eval-freq", "512", "--eval-episodes", "1", "--diagnostics-every", "1",
                       "--eval-workers", "0"),
     # the hard-task recipe: each Fetch task with its own defaults, Hopper's nu = 1 regime
-    **{f"recipe_{task.lower()}": ("ipg_her.py", "--env-id", f"{task}-v4", "--total-timesteps",
-                                  "600", "--critic-steps", "8", "--eval-freq", "200",
-                                  "--eval-episodes", "2", "--diagnostics-every", "1",
-                                  "--eval-workers", "0")
+    **{f"recipe_{task.lower()}": ("ipg_her_recipe.py", "--env-id", f"{task}-v4",
+                                  "--total-timesteps", "600", "--critic-steps", "8",
+                                  "--eval-freq", "200", "--eval-episodes", "2",
+                                  "--diagnostics-every", "1", "--eval-workers", "0")
        for task in ("FetchPush", "FetchPickAndPlace", "FetchSlide")},
-    "recipe_hopper_nu1": ("ipg_her.py", "--env-id", "Hopper-v5", "--total-timesteps", "1024",
+    "recipe_hopper_nu1": ("ipg_her_recipe.py", "--env-id", "Hopper-v5", "--total-timesteps", "1024",
                           "--num-envs", "1", "--num-steps", "256", "--critic-steps", "16",
                           "--update-epochs", "2", "--num-minibatches", "4", "--learning-rate",
                           "3e-4", "--gamma", "0.99", "--tau", "0.005", "--twin-critic",

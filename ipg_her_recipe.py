@@ -1,0 +1,468 @@
+"""Interpolated Policy Gradient (paper eq. 10; Gu et al. 2017) on PPO-KL, with Hindsight Experience
+Replay (Fig. 2; Andrychowicz et al. 2017). Docs: docs/ipg_her.md. IPG mixes the likelihood-ratio
+gradient with an off-policy one through a critic Q_w:
+
+    grad J = (1 - nu) E_{rho, pi}[grad log pi(a|s) A_hat(s, a)] + nu E_{s ~ beta}[grad Q_bar_w(s)]
+
+(eq. 10), Q_bar_w(s) = E_{a ~ pi}[Q_w(s, a)] taken as Q_w(s, mu(s)) or one reparameterised sample:
+nu = 0 is PPO-KL, nu = 1 DDPG with a stochastic policy, both inside PPO-KL's KL penalty (whose
+coefficient is ``beta``; the paper's state distribution beta is ``--off-policy-states``). HER
+relabels what the critic and the off-policy term see; the likelihood-ratio term keeps real goals.
+
+The variant: ``ipg_her.py`` plus the recipe the hard Fetch tasks need (docs/ipg_her_recipe.md), each
+one measured on them: twin critics (TD3, Fujimoto et al. 2018), an entropy-targeted sigma (SAC's
+alpha rule, Haarnoja et al. 2018), an action penalty (OpenAI's HER) and a bounds loss (rl_games),
+annealed learning rates, grasped starts (HER sec. 4.1), and each task's own defaults.
+"""
+
+import copy
+import sys
+from dataclasses import dataclass
+from typing import Literal
+
+import gymnasium as gym
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.optim as optim
+from torch.distributions import Normal, kl_divergence
+
+from common import cli, diagnostics, her
+from common.gae import compute_gae
+from common.grasped_start import GraspedStart, refusal
+from common.her import HerReplayBuffer, goal_task_reward, sparse_return_range
+from common.normalizer import InputNormalizer, RewardScaler
+from common.replay import ReplayBuffer, buffer_refusal, sample_replay
+from common.rollout import collect_rollout, make_vector_env
+from common.run import Run, RunArgs
+
+cli.register_goal_tasks()
+torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
+BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
+HARD_FETCH = dict(hidden=256, target_std=1.0, normalization="paper", action_l2=1.0,
+                  twin_critic=True)  # each one measured on FetchPush (docs)  # fmt: skip
+TASK_DEFAULTS = {"FetchPush-v4": HARD_FETCH,  # flags win; sigma per x, y, z, gripper
+    "FetchPickAndPlace-v4": HARD_FETCH | dict(grasped_start=0.5, target_std=(1.0, 1.0, 1.0, 0.3)),
+    "FetchSlide-v4": HARD_FETCH | dict(target_std=(0.3, 0.3, 0.3, 1.0), action_l2=0.0,
+                                       bounds_loss=1.0, anneal_lr=True)}  # fmt: skip
+
+
+@dataclass
+class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
+    """IPG with HER and the hard tasks' recipe (docs/ipg_her_recipe.md); tasks' own defaults."""
+
+    env_id: str = "FetchReach-v4"
+    """the id of the gymnasium environment"""
+    total_timesteps: int = 30_000
+    """environment steps to train for, counted over all parallel envs (whole batches)"""
+    num_envs: int = 2
+    """the number of parallel environments"""
+    num_steps: int = 50
+    """steps per env per rollout (batch = num_envs * num_steps; ipg_her.py: 50, one episode)"""
+    learning_rate: float = 1e-3
+    """the learning rate of Adam (ipg_her.py: 1e-3, OpenAI's HER recipe)"""
+    anneal_lr: bool = False
+    """anneal the learning rates (the policy's and the critic's) linearly to zero"""
+    gamma: float = 0.98
+    """the discount factor gamma (ipg_her.py: 0.98, OpenAI's HER recipe)"""
+    gae_lambda: float = 0.95
+    """lam of GAE (eq. 4)"""
+    num_minibatches: int = 1
+    """the number of minibatches per epoch (ipg_her.py: 1, its batch is one episode per env)"""
+    update_epochs: int = 10
+    """passes over the batch per update"""
+    norm_adv: bool = True
+    """normalise the advantages of a batch to zero mean and unit std"""
+    kl_target: float = 0.1
+    """d_targ, the mean KL per update the beta rule aims for (ipg_her.py: 0.1, for nu = 1)"""
+    beta_init: float = 1.0
+    """initial KL penalty coefficient beta (the PPO paper: insensitive)"""
+    init_log_std: float = 0.0
+    """initial log std of the Gaussian policy (ipg_her.py: 0, goals need wide exploration)"""
+    vf_coef: float = 0.5
+    """coefficient of the value loss"""
+    max_grad_norm: float = 0.5
+    """the maximum gradient norm, of the policy and of V each (clipped separately)"""
+    norm_obs: bool = True
+    """normalise observations (and goals) by running mean and std (saved with the model)"""
+    norm_reward: bool = False
+    """divide rewards by the running std of the discounted return (not Fetch's 0 / -1)"""
+    eval_freq: int = 2500  # these two: RunArgs' help (common/run.py), ipg_her.py's defaults
+    eval_episodes: int = 20
+    diagnostics_every: int = 10
+    """log the diagnostics ipg/* every this many updates (0: never; they leave training as is)"""
+
+    # IPG arguments
+    nu: float = 1.0
+    """nu of eq. 10: weight of the off-policy term (0: PPO-KL, 1: DDPG-like, stochastic policy)"""
+    use_cv: bool = False
+    """control variate: learning signal A_hat - A_bar (eq. 9) and off-policy weight 1"""
+    off_policy_states: Literal["replay", "batch"] = "replay"
+    """the off-policy term's states: uniform from the replay buffer, or the on-policy batch"""
+    q_bar: Literal["mean", "sample"] = "mean"
+    """Q_bar_w(s) as Q_w(s, mu(s)) (mean) or Q_w(s, mu(s) + sigma eps), a reparameterised sample"""
+    off_policy_batch_size: int = 256
+    """replay states per policy minibatch for the off-policy term"""
+    normalization: Literal["paper", "unbiased"] = "unbiased"
+    """normalise the learning signal only (paper, biased) or the critic's term with it (unbiased)"""
+    buffer_size: int = 1_000_000
+    """replay buffer capacity in transitions"""
+    critic_learning_rate: float = 1e-3
+    """the learning rate of the critic Q_w"""
+    critic_batch_size: int = 256
+    """transitions per critic step"""
+    critic_steps: int = 50
+    """critic steps per iteration (ipg_her.py: 50 per 100 env steps, OpenAI's HER recipe)"""
+    hidden: int = 64
+    """width of the two hidden layers of every network (policy, V and Q_w)"""
+    tau: float = 0.05
+    """soft target update rate of eq. 6, after every critic step (ipg_her.py: 0.05, OpenAI's HER)"""
+    learning_starts: int = 100
+    """environment steps before the critic, and what uses it, starts"""
+
+    # the recipe
+    target_std: float | tuple[float, ...] | None = None
+    """the sigma rule: hold H(pi) at H(N(0, target_std^2)) per action, or one each (None: off)"""
+    grasped_start: float = 0.0
+    """share of training episodes started with the object in the gripper (the HER paper's 0.5)"""
+    action_l2: float = 0.0
+    """weight of the penalty mean(mu(s)^2) beside the off-policy term (OpenAI's HER: 1)"""
+    bounds_loss: float = 0.0
+    """weight of the penalty mean((mu(s) beyond the action bounds)^2) (rl_games' bounds loss)"""
+    twin_critic: bool = False
+    """two critics, the target the smaller of their Q_w' (TD3's clipped double Q)"""
+    critic_target: Literal["mean", "sample"] = "mean"
+    """the critic's target at a' = mu(s') (DDPG's) or at one a' ~ pi(s') (SAC's, no entropy term)"""
+    clip_q_target: bool = True
+    """goal tasks with Fetch's 0/-1 reward: clip critic targets to [-1/(1-gamma), 0]"""
+
+
+def ignored(args: Args, goal_task: bool = True) -> dict[str, str]:
+    """The flags this run would ignore, ``{flag: why}``: given on the command line, they fail."""
+    critic_flags = ("--critic-learning-rate --critic-batch-size --critic-steps --tau --buffer-size "
+                    "--learning-starts --q-bar --off-policy-states --off-policy-batch-size "
+                    "--normalization --diagnostics-every --action-l2 --bounds-loss --twin-critic "
+                    "--critic-target --clip-q-target")  # fmt: skip
+    return her.ignored(args, args.env_id, goal_task) | cli.ignored(
+        (not goal_task, "--clip-q-target", f"{args.env_id} is not a goal task"),
+        (not args.norm_adv, "--normalization", "--no-norm-adv: nothing to normalise"),
+        (args.off_policy_states == "batch", "--off-policy-batch-size", "--off-policy-states batch"),
+        (args.nu == 1 and args.use_cv, "--use-cv", "at --nu 1 its on-policy term has weight 0"),
+        (args.nu == 0 and not args.use_cv, f"{critic_flags} {her.FLAGS}",
+         "at --nu 0 without --use-cv no term uses the critic"),
+    )  # fmt: skip
+
+
+def check_args(args: Args, argv: list[str]) -> None:
+    """Bad input fails here, before anything runs: one ``error:`` line (``common/cli.py``)."""
+    goal_task = cli.check_common(args)  # the checks every script needs
+    cli.check_range(args, "nu", 0.0, 1.0)
+    cli.check_non_negative(args, "critic_steps", "learning_starts", "action_l2", "bounds_loss")
+    cli.refuse_ignored(argv, ignored(args, goal_task))
+    cli.check_positive(args, "critic_learning_rate", "critic_batch_size", "buffer_size")
+    cli.check_positive(args, "hidden", "off_policy_batch_size")
+    cli.check_range(args, "tau", 0.0, 1.0, open_low=True)
+    cli.refuse(buffer_refusal(args.buffer_size, args.num_envs, args.env_id))
+    cli.refuse(her.check(args, args.env_id, goal_task))  # and on a task without goals: HER is off
+    stds = () if args.target_std is None else tuple(np.atleast_1d(args.target_std))
+    if min(stds, default=1.0) <= 0:
+        cli.fail(f"--target-std must be positive, got {' '.join(map(str, stds))}")
+    if args.target_std is not None and len(stds) != 1:  # none (a bare --target-std) or several
+        if len(stds) != (dims := gym.make(args.env_id).action_space.shape[0]):
+            cli.fail(f"--target-std takes one sigma or one per action dimension ({dims} on "
+                     f"{args.env_id}), not {len(stds)}")  # fmt: skip
+    cli.check_range(args, "grasped_start", 0.0, 1.0)
+    cli.refuse(args.grasped_start and refusal(args.env_id))
+
+
+# ENV SETUP
+def make_env(env_id: str, grasped_start: float = 0.0):
+    def thunk():
+        env = gym.make(env_id)  # a goal task keeps its Dict: HER needs the goals apart
+        env = GraspedStart(env, grasped_start) if grasped_start else env  # HER's sec. 4.1
+        return gym.wrappers.RecordEpisodeStatistics(env)
+
+    return thunk
+
+
+# ALGO LOGIC: networks
+def layer_init(layer: nn.Linear, std: float = np.sqrt(2), bias_const: float = 0.0) -> nn.Linear:
+    torch.nn.init.orthogonal_(layer.weight, std)
+    torch.nn.init.constant_(layer.bias, bias_const)
+    return layer
+
+
+class Agent(nn.Module):
+    """Gaussian policy pi_theta(a|s) = N(mu_theta(s), diag(exp(log_std))^2), baseline V_phi(s)."""
+
+    def __init__(self, obs_dim: int, act_dim: int, hidden: int = 64, init_log_std: float = 0.0):
+        super().__init__()
+        self.critic = nn.Sequential(
+            layer_init(nn.Linear(obs_dim, hidden)), nn.Tanh(),
+            layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
+            layer_init(nn.Linear(hidden, 1), std=1.0),
+        )  # fmt: skip
+        self.actor_mean = nn.Sequential(
+            layer_init(nn.Linear(obs_dim, hidden)), nn.Tanh(),
+            layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
+            layer_init(nn.Linear(hidden, act_dim), std=0.01),
+        )  # fmt: skip
+        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))  # independent of s
+
+    def actor_parameters(self) -> list[nn.Parameter]:
+        return [*self.actor_mean.parameters(), self.actor_logstd]
+
+    def get_value(self, x: torch.Tensor) -> torch.Tensor:
+        return self.critic(x).squeeze(-1)
+
+    def dist(self, x: torch.Tensor) -> Normal:
+        mean = self.actor_mean(x)
+        return Normal(mean, self.actor_logstd.expand_as(mean).exp())
+
+
+class QNetwork(nn.Module):
+    """Critic Q_w(s, a) of the executed (clipped) action; ``twin``: TD3's second (Fujimoto 2018)."""
+
+    def __init__(self, obs_dim, act_dim, hidden=128, low=-np.inf, high=np.inf, twin=False):
+        super().__init__()
+        self.net, *twin_net = [nn.Sequential(
+            nn.Linear(obs_dim + act_dim, hidden), nn.ReLU(),
+            nn.Linear(hidden, hidden), nn.ReLU(),
+            nn.Linear(hidden, 1),
+        ) for _ in range(1 + twin)]  # fmt: skip
+        self.twin = nn.ModuleList(twin_net)  # empty without twin
+        self.register_buffer("low", torch.as_tensor(low, dtype=torch.float32).expand(act_dim))
+        self.register_buffer("high", torch.as_tensor(high, dtype=torch.float32).expand(act_dim))
+
+    def forward(self, x: torch.Tensor, a: torch.Tensor, both: bool = False):  # both: [Q_1, Q_2]
+        xa = torch.cat([x, torch.clamp(a, self.low, self.high)], -1)  # the executed action
+        qs = [net(xa).squeeze(-1) for net in (self.net, *self.twin)[: 2 if both else 1]]
+        return qs if both else qs[0]
+
+
+# ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
+def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae_lambda: float):
+    """GAE advantages and pi_old's statistics of a rollout, as one flat batch. V(s_{t+1}) is the
+    next row's V, or V(final_obs) where an episode ended (``compute_gae`` masks terminations)."""
+    with torch.no_grad():
+        values = agent.get_value(ro["obs"])
+        next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
+        ended = ro["episode_ends"].bool()
+        next_values = torch.where(ended, agent.get_value(ro["final_obs"]), next_values)
+        advantages = compute_gae(
+            ro["rewards"], values, next_values, ro["terminations"], ro["episode_ends"],
+            gamma=gamma, gae_lambda=gae_lambda,
+        )  # fmt: skip
+        pi_old = agent.dist(ro["obs"])
+        return {"obs": ro["obs"].flatten(0, 1), "actions": ro["actions"].flatten(0, 1),
+                "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),
+                "mean": pi_old.mean.flatten(0, 1), "std": pi_old.stddev.flatten(0, 1),
+                "advantages": advantages.flatten(),
+                "returns": (advantages + values).flatten()}  # fmt: skip
+
+
+# ALGO LOGIC: the critic step: DDPG's TD learning, eq. 6's soft target update
+def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent,
+                data: dict, gamma: float, tau: float, target_range=None, sample=False):  # fmt: skip
+    """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
+    with torch.no_grad():  # Q_w'(s', a'), a' = mu(s') or a' ~ pi(s'); twin: the smaller (TD3)
+        a = agent.dist(data["next_obs"]).sample() if sample else agent.actor_mean(data["next_obs"])
+        next_q = torch.stack(qf_target(data["next_obs"], a, True))
+        target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q.min(0).values
+        if target_range is not None:
+            target = target.clamp(*target_range)  # the returns the rewards allow (OpenAI's HER)
+    qs = qf(data["obs"], data["actions"], both=True)
+    loss = sum(0.5 * ((q - target) ** 2).mean() for q in qs)  # twin: each network its own
+    q_optimizer.zero_grad()
+    loss.backward()
+    q_optimizer.step()
+    with torch.no_grad():
+        for p, p_target in zip(qf.parameters(), qf_target.parameters(), strict=True):
+            p_target.lerp_(p, tau)  # w' <- tau w + (1 - tau) w'   (eq. 6)
+    return loss.item(), qs[0].mean().item()
+
+
+# ALGO LOGIC: the control variate (eq. 9)
+def control_variate(qf: QNetwork, agent: Agent, obs: torch.Tensor, actions: torch.Tensor):
+    """A_bar(s, a) = grad_a Q_w(s, a)|_{a = mu(s)} . (a - mu(s))   (eq. 9), no gradient to theta."""
+    mu = agent.actor_mean(obs).detach().requires_grad_(True)  # a leaf: grad_a, not theta's
+    (grad_q,) = torch.autograd.grad(qf(obs, mu).sum(), mu)
+    return (grad_q * (actions - mu)).sum(-1).detach()
+
+
+def ipg_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, adv=None, s_off=None,
+             q_bar: str = "mean", generator=None) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+    """Eq. 10's two terms on a minibatch ``mb`` as losses (``pi = agent.dist(mb["obs"])``): -E[r_t
+    adv_t] (eq. 5's; 0 without ``adv``) and -E_{s ~ beta}[Q_bar_w(s)] on ``s_off`` (0 without)."""
+    on_term = off_term = torch.zeros(())
+    if adv is not None:
+        ratio = (pi.log_prob(mb["actions"]).sum(-1) - mb["logprobs"]).exp()  # r_t(theta)
+        on_term = -(ratio * adv).mean()
+    if s_off is not None:
+        a_off = agent.actor_mean(s_off)
+        if q_bar == "sample":  # a = mu + sigma eps: the gradient reaches sigma too
+            a_off = a_off + agent.actor_logstd.exp() * torch.randn(a_off.shape, generator=generator)
+        off_term = -qf(s_off, a_off).mean()  # -Q_bar_w(s), s ~ beta (eq. 10): eq. 7's gradient
+    return on_term, off_term
+
+
+def learning_signal(b: dict, args: Args):
+    """The update's weights: the signal, normalised; its raw std; the critic term's b and scale."""
+    adv = b["advantages"] - b["cv"] if "cv" in b else b["advantages"]  # A_hat (- A_bar)
+    off_scale, signal_std = 1.0, adv.std()  # on the raw scale
+    if args.norm_adv:
+        adv = (adv - adv.mean()) / (signal_std + 1e-8)
+        if args.normalization == "unbiased":
+            off_scale = 1.0 / (signal_std.item() + 1e-8)  # the same 1/sigma on both terms
+    return adv, signal_std, 1.0 if args.use_cv else args.nu, off_scale
+
+
+# ALGO LOGIC: the IPG update (eq. 10) on the PPO-KL surrogate (eq. 5)
+def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args,
+               qf: QNetwork | None = None, replay=None, alpha=0.0):  # fmt: skip
+    """Eq. 10 inside eq. 5: ``update_epochs`` passes of Adam, then the beta rule."""
+    batch_size = b["obs"].shape[0]
+    minibatch_size = batch_size // args.num_minibatches
+    adv, signal_std, off_weight, off_scale = learning_signal(b, args)
+    use_off_policy = qf is not None and off_weight > 0
+    from_replay = use_off_policy and args.off_policy_states == "replay"
+    replayed = iter(replay(args.update_epochs * args.num_minibatches) if from_replay else ())
+    pi_old = Normal(b["mean"], b["std"])
+    actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
+    for epoch in range(args.update_epochs):
+        perm = torch.randperm(batch_size)  # once per epoch: the minibatches are then views
+        keys = ("obs", "actions", "logprobs", "mean", "std", "returns")
+        shuffled = {key: b[key][perm] for key in keys} | {"adv": adv[perm]}
+        for start in range(0, batch_size, minibatch_size):
+            mb = {key: v[start : start + minibatch_size] for key, v in shuffled.items()}
+            pi = agent.dist(mb["obs"])
+            kl = kl_divergence(Normal(mb["mean"], mb["std"]), pi).sum(-1).mean()  # analytic
+            s_off = next(replayed)["obs"] if from_replay else mb["obs"] if use_off_policy else None
+            on_term, off_term = ipg_loss(agent, qf, pi, mb, mb["adv"] if args.nu < 1 else None,
+                                         s_off, args.q_bar)  # fmt: skip
+            pg_loss = beta * kl + (1.0 - args.nu) * on_term + off_weight * off_scale * off_term
+            if s_off is not None and (args.action_l2 or args.bounds_loss):  # mu(s) in the bounds
+                mu = agent.actor_mean(s_off)  # OpenAI's HER: l2 mu(s)^2; rl_games: beyond bounds
+                beyond = mu - mu.clamp(qf.low, qf.high)  # zero inside: there Q_w's gradient lives
+                pg_loss += args.action_l2 * (mu**2).mean() + args.bounds_loss * (beyond**2).mean()
+            h = pi.entropy().mean(0) if np.ndim(alpha) else pi.entropy().sum(-1).mean()
+            pg_loss = pg_loss - (h.new_tensor(alpha) * h).sum()  # the sigma rule's bonus
+            v_loss = 0.5 * ((agent.get_value(mb["obs"]) - mb["returns"]) ** 2).mean()
+            optimizer.zero_grad()
+            (pg_loss + args.vf_coef * v_loss).backward()
+            nn.utils.clip_grad_norm_(actor_params, args.max_grad_norm)  # policy and
+            nn.utils.clip_grad_norm_(critic_params, args.max_grad_norm)  # V apart
+            optimizer.step()
+    with torch.no_grad():
+        pi = agent.dist(b["obs"])
+        d = kl_divergence(pi_old, pi).sum(-1).mean().item()  # d: mean KL[pi_old || pi]
+        entropy = pi.entropy().sum(-1).mean().item()
+    stats = {"losses/policy_loss": pg_loss.item(), "losses/value_loss": v_loss.item(),
+             "losses/approx_kl": d, "losses/beta": beta, "losses/epochs": epoch + 1,
+             "charts/policy_entropy": entropy, "ipg/signal_std": signal_std.item(),
+             "ipg/on_policy_term": on_term.item(), "ipg/nu": args.nu,
+             "ipg/off_policy_term": off_term.item(), "ipg/alpha": np.mean(alpha)}  # fmt: skip
+    if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
+        beta /= 2
+    elif d > args.kl_target * 1.5:
+        beta *= 2
+    return min(max(beta, BETA_MIN), BETA_MAX), stats
+
+
+def sigma_rule(alpha, entropy: float, log_std: np.ndarray, target_std):
+    """SAC's alpha rule (Haarnoja 2018, eq. 18), two-sided: alpha += 0.01 (H_target - H(pi))."""
+    if np.ndim(target_std):  # H(N(0, t_i^2)) - H(pi_i) = log t_i - log sigma_i
+        return alpha + 0.01 * (np.log(target_std) - log_std)
+    h_target = len(log_std) * (0.5 * np.log(2 * np.pi * np.e) + np.log(target_std))
+    return alpha + 0.01 * (h_target - entropy)
+
+
+if __name__ == "__main__":
+    args = cli.parse_args(Args, task_defaults=TASK_DEFAULTS, ignored=ignored)
+    check_args(args, sys.argv[1:])
+    batch_size = args.num_envs * args.num_steps
+    num_iterations = args.total_timesteps // batch_size
+    run = Run(args)  # TRY NOT TO MODIFY: run folder, TensorBoard, seeding (common/run.py)
+
+    # ENV SETUP
+    envs = make_vector_env(make_env(args.env_id, args.grasped_start), args.num_envs)
+    space = envs.single_observation_space
+    goal_dim = space["desired_goal"].shape[0] if isinstance(space, gym.spaces.Dict) else 0
+    obs_dim = space["observation"].shape[0] if goal_dim else space.shape[0]
+    act_dim = envs.single_action_space.shape[0]
+    envs.single_action_space.seed(run.streams.action_space_seed)
+
+    # ALGO LOGIC: networks, optimisers, normalisers, replay (with HER on goal tasks)
+    agent = Agent(obs_dim + goal_dim, act_dim, hidden=args.hidden, init_log_std=args.init_log_std)
+    optimizer = optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5, fused=True)
+    norm = InputNormalizer(obs_dim, goal_dim)
+    low, high = envs.single_action_space.low, envs.single_action_space.high
+    qf = QNetwork(obs_dim + goal_dim, act_dim, args.hidden, low, high, args.twin_critic)
+    qf_target = copy.deepcopy(qf)
+    q_optimizer = optim.Adam(qf.parameters(), lr=args.critic_learning_rate, fused=True)
+    rb = ReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, run.streams.replay_seed)
+    q_range = None  # the returns the reward allows: the critic's targets are clipped to them
+    if goal_dim:  # hindsight relabelling (Figure 2) needs the task's reward function
+        compute_reward = goal_task_reward(args.env_id, args.her)
+        if args.clip_q_target:
+            q_range = sparse_return_range(compute_reward, goal_dim, args.gamma)
+        rb = HerReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, goal_dim,
+                             compute_reward, args.her_n_sampled_goal if args.her else 0,
+                             args.her_goal_selection_strategy, run.streams.replay_seed)  # fmt: skip
+    replay = lambda n, rng=None: sample_replay(rb, norm, 1.0, args.off_policy_batch_size, n, rng)
+    reward_scaler = RewardScaler(args.num_envs, args.gamma)
+    raw_obs, beta, alpha = run.start(
+        envs, model=dict(agent=agent, normalizer=norm, qf=qf, qf_target=qf_target),
+        training=dict(optimizer=optimizer, reward_scaler=reward_scaler,
+                      q_optimizer=q_optimizer, rb=rb), beta=args.beta_init, alpha=0.0)  # fmt: skip
+
+    with run:  # TRY NOT TO MODIFY: Ctrl-C, kill or a NaN end the run cleanly
+        for iteration in run.iterations(num_iterations):
+            if args.anneal_lr:
+                frac = 1.0 - (iteration - 1.0) / num_iterations
+                optimizer.param_groups[0]["lr"] = frac * args.learning_rate
+                q_optimizer.param_groups[0]["lr"] = frac * args.critic_learning_rate
+
+            # ALGO LOGIC: rollout
+            ro, raw_obs, episodes = collect_rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
+                                                    update_norm=args.norm_obs)  # fmt: skip
+            global_step = run.record_episodes(episodes)
+
+            # ALGO LOGIC: one reward scale for GAE and the critic
+            reward_scale = 1.0
+            if args.norm_reward:
+                ro["rewards"] = reward_scaler(ro["rewards"], ro["episode_ends"])
+                reward_scale = 1.0 / reward_scaler.std()
+
+            # ALGO LOGIC: the critic first (eq. 6; Q-Prop's Algorithm 1), so that the control
+            # variate and the critic's term see the new data; at nu = 0 without them, no critic
+            learning = (args.nu > 0 or args.use_cv) and global_step >= args.learning_starts
+            learning = learning and rb.num_sampleable() > 0
+            if learning and args.critic_steps > 0:
+                target_range = (q_range[0] * reward_scale, 0.0) if q_range else None  # clipped
+                for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size,
+                                          args.critic_steps):  # fmt: skip
+                    q_loss, q_mean = critic_step(qf, qf_target, q_optimizer, agent, data,
+                                                 args.gamma, args.tau, target_range,
+                                                 args.critic_target == "sample")  # fmt: skip
+                run.log({"losses/critic_loss": q_loss, "losses/q_values": q_mean})
+
+            # ALGO LOGIC: advantages (eq. 3-4) and the control variate (eq. 9)
+            b = make_batch(agent, ro, norm(raw_obs), args.gamma, args.gae_lambda)
+            if args.use_cv and learning:  # with the critic and the term that offsets it (eq. 8)
+                b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
+                run.log({"ipg/cv_mean": b["cv"].mean().item()})
+            diagnose = args.diagnostics_every and (iteration - 1) % args.diagnostics_every == 0
+            if learning and diagnose:  # DIAGNOSTICS: the mixture, before the update (ipg/*)
+                measured = diagnostics.interpolation_report(agent, qf, b, args, replay, run,
+                    control_variate, ipg_loss, learning_signal)  # fmt: skip
+                run.log({f"ipg/{key}": value for key, value in measured.items()})
+
+            # ALGO LOGIC: the IPG update (eq. 10 on eq. 5)
+            beta, stats = ipg_update(agent, optimizer, b, beta, args, qf if learning else None,
+                                     replay, alpha)  # fmt: skip
+            stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}
+            if args.target_std is not None:  # the sigma rule: SAC's eq. 18, two-sided (docs)
+                log_std = agent.actor_logstd.detach().numpy()[0]
+                alpha = sigma_rule(alpha, stats["charts/policy_entropy"], log_std, args.target_std)
+            run.end_iteration(stats, beta=beta, alpha=alpha)  # TRY NOT TO MODIFY: log, save
