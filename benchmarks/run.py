@@ -10,6 +10,24 @@ runs ``pid`` (a later call starts no second copy of a run still running). A run 
 ``exit_code`` says 0 is skipped by the next call (resume); a failed one is run again, and one
 stopped goes on from its resume point if it has one. The call exits non-zero if any run failed.
 Ctrl-C (or SIGTERM) stops the suite: the running scripts save and exit, no other run starts.
+
+The suites (``SUITES``: one row per variant x task, each on its seeds; ``--seeds`` replaces them):
+
+- ``quick``: the paper's grid on tiny budgets, one seed, in seconds.
+- ``paper``: Figure 3 (Hopper: PPO-KL, Q-Prop) and Figures 4-5 (FetchReach: PPO-KL, Q-Prop, IPG
+  without and with HER), 5 seeds.
+- ``ablations``: Q-Prop's eta and normalisation on Hopper; IPG+HER's nu, control variate,
+  off-policy states and HER settings on FetchReach.
+- ``eta``: Q-Prop's eta per batch and per sample against PPO-KL, Hopper at 300k steps.
+- ``mixing``: does an interpolated gradient (0 < nu < 1) beat both ends? IPG+HER on FetchReach
+  at nu 0 to 1, with and without the control variate, small and large on-policy batches; IPG and
+  Q-Prop variants on Hopper at 300k (``--only FetchReach`` or ``--only Hopper``: one task).
+- ``hopper``: the recipe's IPG at nu 1 and 0.5 in TD3's update regime against PPO-KL at 300k on
+  fresh seeds, its variants (narrow noise, the critic's term at scale 1, a sampled target), and
+  nu 1 to 1M on a seed of its own.
+- ``push``: the paper's IPG+HER (``ipg_her.py``, no recipe) on FetchPush, ``--push-steps`` each.
+- ``fetch``: the recipe with no flag but the task's budget on Push, PickAndPlace and Slide, fresh
+  seeds; one critic, mixing at nu 0.5 and 0.8, and each task's earlier defaults beside it.
 """
 
 import ctypes
@@ -77,7 +95,9 @@ class Run:
         return command + (["--resume", str(resume_points[-1].parent)] if resume_points else [])
 
 
-HOPPER_STEPS, FETCH_STEPS = 1_000_000, 30_000
+PPO, QPROP, IPG, RECIPE = "ppo_kl.py", "qprop_ppo.py", "ipg_her.py", "ipg_her_recipe.py"
+HOPPER, REACH, PUSH = "Hopper-v5", "FetchReach-v4", "FetchPush-v4"
+PICK, SLIDE = "FetchPickAndPlace-v4", "FetchSlide-v4"
 CRITIC_ONLY = ("--critic-steps", "--learning-starts", "--diagnostics-every")
 
 
@@ -87,253 +107,173 @@ def critic_free(flags: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(f for i, f in enumerate(flags) if i not in drop)
 
 
+NUS = ("0.0", "0.2", "0.5", "0.8", "1.0")
+K300 = ("--total-timesteps", "300000")
+FETCH_EVAL = ("--total-timesteps", "30000", "--eval-freq", "2500", "--eval-episodes", "20")
+EVERY = ("--diagnostics-every", "1")  # the mixing study logs ipg/* at every update
+# mixing: the on-policy batch, 2 envs x 50 steps or x 500, with the same critic steps and policy
+# minibatch steps per environment step (0.5 and 0.1)
+BATCHES = {"b100": ("--num-steps", "50", *EVERY),
+           "b1000": ("--num-steps", "500", "--critic-steps", "500", "--num-minibatches", "10",
+                     *EVERY)}  # fmt: skip
+# mixing on Hopper: ipg_her.py with PPO-KL's batch, learning rate and gamma (at nu = 0 it is PPO-KL,
+# but not ppo_kl.py's defaults: KL target 0.01, initial log std 0, input clip 5, no learning-rate
+# annealing, 20 evaluation episodes), and a critic trained about once per environment step after a
+# real warm-up
+HOPPER_IPG = (*K300, "--num-envs", "4", "--num-steps", "512", "--num-minibatches", "32",
+              "--learning-rate", "3e-4", "--gamma", "0.99", "--kl-target", "0.01",
+              "--norm-reward", "--critic-steps", "2048", "--learning-starts", "10000",
+              "--eval-freq", "20000", *EVERY)  # fmt: skip
+# hopper: TD3's update regime, an update every 256 steps, one critic step per environment step,
+# 128 policy steps, run in parts; TD3_NARROW: TD3's exploration noise (0.1) with the KL target
+# scaled by (0.3 / 0.1)^2, so that the mean's step per update stays what it was at 0.3
+TD3 = (*K300, "--num-envs", "1", "--num-steps", "256", "--critic-steps", "256",
+       "--update-epochs", "8", "--num-minibatches", "16", "--learning-rate", "3e-4",
+       "--gamma", "0.99", "--tau", "0.005", "--hidden", "256", "--twin-critic",
+       "--target-std", "0.3", "--q-bar", "sample", "--learning-starts", "10000",
+       "--eval-freq", "25600", "--eval-episodes", "10", "--resume-freq", "51200")  # fmt: skip
+TD3_NARROW = (*[f if f != "0.3" else "0.1" for f in TD3], "--kl-target", "0.9",
+              "--bounds-loss", "1.0")  # fmt: skip
+FETCH_EVERY = ("--eval-freq", "10000", "--eval-episodes", "50", "--resume-freq", "50000")
+ONE_CRITIC = ("--no-twin-critic",)  # the recipe's defaults before the twin critic
+PICK_ONE_SIGMA = ("--total-timesteps", "500000", *FETCH_EVERY, "--target-std", "1.0")
+SLIDE_CONSTLR = ("--total-timesteps", "1000000", *FETCH_EVERY, "--no-anneal-lr")
+PUSH_BUDGET = ("--total-timesteps", "{steps}", "--eval-freq", "25000", "--resume-freq", "50000")
+TINY = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4", "--update-epochs", "2",
+        "--eval-episodes", "1")  # fmt: skip
+TINY_IPG = ("--total-timesteps", "300", "--critic-steps", "4", "--eval-freq", "100",
+            "--eval-episodes", "2")  # fmt: skip
+
+# suite: (its seeds, its rows). A row is (name, script, env_id, flags) or, on seeds of its own,
+# (name, script, env_id, flags, seeds); in the push suite "{steps}" and "{k}" stand for
+# --push-steps and the same in thousands.
+SUITES: dict[str, tuple[tuple[int, ...], list[tuple]]] = {
+    "paper": ((1, 2, 3, 4, 5), [
+        ("ppo_kl", PPO, HOPPER, ()),
+        ("qprop_ppo", QPROP, HOPPER, ()),
+        ("ppo_kl", PPO, REACH, FETCH_EVAL),
+        ("qprop_ppo", QPROP, REACH, FETCH_EVAL),
+        ("ipg", IPG, REACH, ("--no-her",)),
+        ("ipg_her", IPG, REACH, ()),
+    ]),
+    "ablations": ((1, 2, 3), [
+        *[(f"qprop_{eta}_{norm}", QPROP, HOPPER, ("--eta-mode", eta, "--normalization", norm))
+          for eta in ("conservative", "aggressive", "ones") for norm in ("paper", "unbiased")],
+        *[(f"ipg_her_nu{nu}", IPG, REACH, ("--nu", nu)) for nu in NUS[:4]],
+        ("ipg_her_nu0.2_cv", IPG, REACH, ("--nu", "0.2", "--use-cv")),  # cv needs nu < 1
+        ("ipg_her_batch_states", IPG, REACH, ("--off-policy-states", "batch")),
+        *[(f"ipg_her_k{k}", IPG, REACH, ("--her-n-sampled-goal", k)) for k in ("1", "8")],
+        *[(f"ipg_her_{s}", IPG, REACH, ("--her-goal-selection-strategy", s))
+          for s in ("final", "episode")],
+    ]),
+    "eta": ((1, 2, 3), [
+        ("ppo_kl_300k", PPO, HOPPER, K300),
+        *[(f"qprop_{eta}_300k", QPROP, HOPPER, ("--eta-mode", eta, *K300))
+          for eta in ("batch-conservative", "conservative")],
+    ]),
+    "mixing": ((1, 2, 3, 4, 5), [
+        *[(f"ipg_her_nu{nu}_{batch}" + ("_cv" if cv else ""), IPG, REACH,
+           ("--nu", nu, *(flags if cv or nu != "0.0" else critic_free(flags)),
+            *(("--use-cv",) if cv else ())))
+          for batch, flags in BATCHES.items() for cv in (False, True) for nu in NUS
+          if not (cv and nu == "1.0")],  # at nu = 1 the term the cv enters has no weight
+        # nu = 1 with Q_bar sampled: sigma learns from the critic, as it does at nu < 1
+        ("ipg_her_nu1.0_b100_qsample", IPG, REACH, ("--q-bar", "sample", *EVERY)),
+        *[(f"ipg_nu{nu}_300k", IPG, HOPPER,
+           ("--nu", nu, *(HOPPER_IPG if nu != "0.0" else critic_free(HOPPER_IPG))))
+          for nu in NUS],
+        ("ipg_nu0.0_1M", IPG, HOPPER, ("--nu", "0.0", *critic_free(
+            ("--total-timesteps", "1000000", "--resume-freq", "100000", *HOPPER_IPG[2:])))),
+        # the IPG paper's best variant: nu 0.2, control variate, on-policy states
+        ("ipg_nu0.2_cv_batch_300k", IPG, HOPPER,
+         ("--nu", "0.2", "--use-cv", "--off-policy-states", "batch", *HOPPER_IPG)),
+        # the off-policy end with DDPG's slow target, then with Q_bar sampled
+        ("ipg_nu1.0_tau0.005_300k", IPG, HOPPER, ("--nu", "1.0", "--tau", "0.005", *HOPPER_IPG)),
+        ("ipg_nu1.0_tau0.005_qsample_300k", IPG, HOPPER,
+         ("--nu", "1.0", "--tau", "0.005", "--q-bar", "sample", *HOPPER_IPG)),
+        *[(f"qprop_{eta}_300k", QPROP, HOPPER, ("--eta-mode", eta, *K300))
+          for eta in ("conservative", "batch-conservative")],
+        ("qprop_batch-conservative_critic2048_300k", QPROP, HOPPER,
+         ("--critic-steps", "2048", "--learning-starts", "10000", *K300)),
+    ]),
+    "hopper": ((4, 5, 6), [  # the regime was screened on seed 1
+        ("ppo_kl_300k", PPO, HOPPER, K300),
+        *[(f"ipg_td3_nu{nu}_300k", RECIPE, HOPPER, ("--nu", nu, *TD3)) for nu in ("1.0", "0.5")],
+        ("ipg_td3_bounds_nu1.0_300k", RECIPE, HOPPER,
+         ("--nu", "1.0", *TD3, "--bounds-loss", "1.0")),
+        ("ipg_td3_narrow_nu1.0_300k", RECIPE, HOPPER, ("--nu", "1.0", *TD3_NARROW), (8, 9, 10)),
+        # the critic's term at scale 1, then also the critic's target at a' ~ pi(s')
+        ("ipg_td3_paper_nu1.0_300k", RECIPE, HOPPER,
+         ("--nu", "1.0", *TD3_NARROW, "--normalization", "paper"), (11, 12, 13)),
+        ("ipg_td3_paper_sampled_nu1.0_300k", RECIPE, HOPPER, ("--nu", "1.0", *TD3_NARROW,
+         "--normalization", "paper", "--critic-target", "sample"), (14, 15, 16)),
+        # nu 1 again on fresh trios, and nu 0.5 beside it on the last; PPO-KL on every trio
+        ("ipg_td3_nu1.0_300k", RECIPE, HOPPER, ("--nu", "1.0", *TD3), (14, 15, 16)),
+        ("ipg_td3_nu1.0_300k", RECIPE, HOPPER, ("--nu", "1.0", *TD3), (17, 18, 19)),
+        ("ipg_td3_nu0.5_300k", RECIPE, HOPPER, ("--nu", "0.5", *TD3), (17, 18, 19)),
+        *[("ppo_kl_300k", PPO, HOPPER, K300, trio)
+          for trio in ((8, 9, 10), (11, 12, 13), (14, 15, 16), (17, 18, 19))],
+        ("ipg_td3_nu1.0_1M", RECIPE, HOPPER,
+         ("--nu", "1.0", "--total-timesteps", "1000000", *TD3[len(K300) :]), (7,)),
+    ]),
+    "push": ((1, 2, 3), [  # the paper's IPG+HER, FetchReach's defaults, on Push (no recipe)
+        ("ipg_her_{k}k", IPG, PUSH, PUSH_BUDGET),
+        ("ipg_her_{k}k_qsample", IPG, PUSH, (*PUSH_BUDGET, "--q-bar", "sample")),
+        ("ipg_her_{k}k_nu0.8", IPG, PUSH, (*PUSH_BUDGET, "--nu", "0.8")),
+    ]),
+    "fetch": ((), [  # every row on seeds of its own, fresh ones unless said
+        ("ipg_her_300k", RECIPE, PUSH, ("--total-timesteps", "300000", *FETCH_EVERY),
+         (4, 5, 6, 7, 8)),
+        ("ipg_her_1critic_300k", RECIPE, PUSH,
+         ("--total-timesteps", "300000", *FETCH_EVERY, *ONE_CRITIC), (4, 5, 6, 7, 8)),
+        ("ipg_her_500k", RECIPE, PICK, ("--total-timesteps", "500000", *FETCH_EVERY), (4, 5, 6)),
+        ("ipg_her_1000k", RECIPE, SLIDE, ("--total-timesteps", "1000000", *FETCH_EVERY),
+         (7, 8, 9)),
+        # PickAndPlace's earlier defaults, one sigma rule for all dimensions: with grasped starts,
+        # and before them (on the tuning seeds) with and without the twin critic
+        ("ipg_her_grasped_500k", RECIPE, PICK, PICK_ONE_SIGMA, (4, 5, 6)),
+        ("ipg_her_nograsp_500k", RECIPE, PICK,
+         (*PICK_ONE_SIGMA, "--grasped-start", "0"), (1, 2, 3)),
+        ("ipg_her_nograsp_1critic_500k", RECIPE, PICK,
+         (*PICK_ONE_SIGMA, "--grasped-start", "0", *ONE_CRITIC), (1, 2, 3)),
+        # Slide before its annealed learning rates: its own defaults then, and Push's (one sigma
+        # rule for all dimensions, the action penalty) on the tuning seeds
+        ("ipg_her_constlr_1000k", RECIPE, SLIDE, SLIDE_CONSTLR, (4, 5, 6)),
+        ("ipg_her_sigma1_1000k", RECIPE, SLIDE, (*SLIDE_CONSTLR, "--target-std", "1.0",
+         "--action-l2", "1.0", "--bounds-loss", "0.0"), (1, 2, 3)),
+        # mixing on Push, nu 0.8 and 0.5 at 200k; Push's --normalization paper weighs the terms
+        # nu sigma_A : (1 - nu), so eq. 10's nu is "_eq10"
+        *[(f"ipg_her{kind}_nu{nu}_200k", RECIPE, PUSH,
+           ("--total-timesteps", "200000", "--nu", nu, *FETCH_EVERY, *flags), (4, 5, 6))
+          for kind, flags in (("", ()), ("_1critic", ONE_CRITIC),
+                              ("_eq10", ("--normalization", "unbiased")))
+          for nu in ("0.8", "0.5")],
+    ]),
+    "quick": ((1,), [
+        ("ppo_kl", PPO, HOPPER, ("--total-timesteps", "512", *TINY)),
+        ("qprop_ppo", QPROP, HOPPER,
+         ("--total-timesteps", "512", "--learning-starts", "256", "--critic-steps", "4", *TINY)),
+        ("ppo_kl", PPO, REACH, ("--total-timesteps", "300", "--num-envs", "2", "--num-steps", "50",
+                                "--num-minibatches", "4", "--eval-episodes", "2")),
+        ("ipg", IPG, REACH, ("--no-her", *TINY_IPG)),
+        ("ipg_her", IPG, REACH, TINY_IPG),
+    ]),
+}  # fmt: skip
+
+
 def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_000) -> list[Run]:
-    """The named grids. ``paper``: Figure 3 (Hopper: PPO-KL vs Q-Prop), Figures 4-5 (FetchReach:
-    PPO-KL, Q-Prop, IPG without HER, IPG+HER); ``ablations``: Q-Prop's eta and normalisation, IPG's
-    nu, control variate and HER settings; ``eta``: Q-Prop's eta modes (and its twin critic) against
-    PPO-KL on Hopper at 300k steps; ``mixing``: IPG+HER on FetchReach at nu 0 to 1, with and without
-    the control variate, with a small and a large on-policy batch, and IPG and Q-Prop variants on
-    Hopper at 300k steps (``--only FetchReach`` or ``--only Hopper`` runs one task); ``hopper``: IPG
-    at nu 1 and 0.5 in TD3's update regime against PPO-KL, 300k steps (nu 1 with TD3's noise on
-    seeds of its own), and nu 1 to 1M on one seed; ``push``: IPG+HER on FetchPush-v4 with its
-    earlier controls; ``fetch``: ``ipg_her.py`` with no flag but the task's, Push 5 fresh seeds x
-    300k (and nu 0.5, 0.8 on 3 of them x 200k), PickAndPlace 3 x 500k (and 3 with one sigma rule for
-    all dimensions, ``_grasped``, and 3 without grasped starts either, ``_nograsp``), Slide 3 x 1M
-    (and with constant learning rates, ``_constlr``, and Push's defaults on seeds it was tuned on,
-    ``_sigma1``, both without Slide's annealing),
-    and Push and PickAndPlace with one critic (``_1critic``); ``quick``: the paper's shape on tiny
-    budgets."""
-    fetch = lambda name, script, *flags: (name, script, "FetchReach-v4", flags)  # noqa: E731
-    hopper = lambda name, script, *flags: (name, script, "Hopper-v5", flags)  # noqa: E731
-    fetch_eval = ("--total-timesteps", str(FETCH_STEPS), "--eval-freq", "2500")
-    fetch_eval += ("--eval-episodes", "20")
-    if suite == "paper":
-        seeds = seeds or (1, 2, 3, 4, 5)
-        grid = [
-            hopper("ppo_kl", "ppo_kl.py"),
-            hopper("qprop_ppo", "qprop_ppo.py"),
-            fetch("ppo_kl", "ppo_kl.py", *fetch_eval),
-            fetch("qprop_ppo", "qprop_ppo.py", *fetch_eval),
-            fetch("ipg", "ipg_her.py", "--no-her"),
-            fetch("ipg_her", "ipg_her.py"),
-        ]
-    elif suite == "ablations":
-        seeds = seeds or (1, 2, 3)
-        grid = [
-            hopper(
-                f"qprop_{eta}_{norm}", "qprop_ppo.py", "--eta-mode", eta, "--normalization", norm
-            )
-            for eta in ("conservative", "aggressive", "ones")
-            for norm in ("paper", "unbiased")
-        ]
-        grid += [
-            fetch(f"ipg_her_nu{nu}", "ipg_her.py", "--nu", str(nu)) for nu in (0.0, 0.2, 0.5, 0.8)
-        ]
-        grid += [
-            fetch("ipg_her_nu0.2_cv", "ipg_her.py", "--nu", "0.2", "--use-cv"),  # cv needs nu < 1
-            fetch("ipg_her_batch_states", "ipg_her.py", "--off-policy-states", "batch"),
-        ]
-        grid += [
-            fetch(f"ipg_her_k{k}", "ipg_her.py", "--her-n-sampled-goal", str(k)) for k in (1, 8)
-        ]
-        grid += [
-            fetch(f"ipg_her_{s}", "ipg_her.py", "--her-goal-selection-strategy", s)
-            for s in ("final", "episode")
-        ]
-    elif suite == "eta":  # Q-Prop's eta: one per batch (unbiased) vs per sample (the paper's)
-        seeds = seeds or (1, 2, 3)
-        budget = ("--total-timesteps", "300000")
-        grid = [hopper("ppo_kl_300k", "ppo_kl.py", *budget)]
-        grid += [
-            hopper(f"qprop_{eta}_300k", "qprop_ppo.py", "--eta-mode", eta, *budget)
-            for eta in ("batch-conservative", "conservative")
-        ]
-        # issue 29: the default eta with TD3's twin critic, the stronger critic Q-Prop lacked
-        grid.append(hopper("qprop_twin_300k", "qprop_ppo.py", "--twin-critic", *budget))
-    elif suite == "mixing":  # does an interpolated gradient (0 < nu < 1) beat both ends?
-        seeds = seeds or (1, 2, 3, 4, 5)
-        grid = []
-        # the on-policy batch: 2 envs x 50 steps or x 500, with the same critic steps and policy
-        # minibatch steps per environment step (0.5 and 0.1)
-        every = ("--diagnostics-every", "1")  # the study logs ipg/* at every update
-        batches = {"b100": ("--num-steps", "50", *every),
-                   "b1000": ("--num-steps", "500", "--critic-steps", "500",
-                             "--num-minibatches", "10", *every)}  # fmt: skip
-        for batch, flags in batches.items():
-            for cv in (False, True):
-                for nu in (0.0, 0.2, 0.5, 0.8, 1.0):
-                    if cv and nu == 1.0:  # the likelihood-ratio term has no weight: nu = 1 again
-                        continue
-                    name = f"ipg_her_nu{nu}_{batch}" + ("_cv" if cv else "")
-                    flags_nu = flags if cv or nu else critic_free(flags)
-                    grid.append(fetch(name, "ipg_her.py", "--nu", str(nu), *flags_nu,
-                                      *(("--use-cv",) if cv else ())))  # fmt: skip
-        # nu = 1 with Q_bar sampled: sigma then learns from the critic, as the likelihood-ratio
-        # term lets it at nu < 1 (with Q_bar from the mean, nothing but the KL penalty moves it)
-        grid.append(fetch("ipg_her_nu1.0_b100_qsample", "ipg_her.py", "--q-bar", "sample", *every))
-        # Hopper, 300k steps: ipg_her with PPO-KL's batch, learning rate and gamma (at nu = 0 it is
-        # PPO-KL, but not ppo_kl.py's defaults: KL target 0.01, initial log std 0 not -0.5, input
-        # clip 5 not 10, no learning-rate annealing, 20 evaluation episodes not 10), and a
-        # critic trained about once per environment step after a real warm-up; the IPG paper's
-        # best variant (nu 0.2, control variate, on-policy states); Q-Prop with per-sample and
-        # batch eta and with 8x more critic work after a warm-up
-        hopper_ipg = ("--total-timesteps", "300000", "--num-envs", "4", "--num-steps", "512",
-                      "--num-minibatches", "32", "--learning-rate", "3e-4", "--gamma", "0.99",
-                      "--kl-target", "0.01", "--norm-reward", "--critic-steps", "2048",
-                      "--learning-starts", "10000", "--eval-freq", "20000", *every)  # fmt: skip
-        grid += [hopper(f"ipg_nu{nu}_300k", "ipg_her.py", "--nu", str(nu),
-                        *(hopper_ipg if nu else critic_free(hopper_ipg)))
-                 for nu in (0.0, 0.2, 0.5, 0.8, 1.0)]  # fmt: skip
-        # the winner to 1M steps: nu = 0 (no middle beat it on fresh seeds), run in parts
-        to_1m = ("--total-timesteps", "1000000", "--resume-freq", "100000", *hopper_ipg[2:])
-        grid.append(hopper("ipg_nu0.0_1M", "ipg_her.py", "--nu", "0.0", *critic_free(to_1m)))
-        grid.append(hopper("ipg_nu0.2_cv_batch_300k", "ipg_her.py", "--nu", "0.2", "--use-cv",
-                           "--off-policy-states", "batch", *hopper_ipg))  # fmt: skip
-        # the off-policy end with DDPG's slow target (tau 0.005, not FetchReach's 0.05): at 2,048
-        # critic steps per update a fast target follows the critic, and nu = 1's critic diverged
-        grid.append(hopper("ipg_nu1.0_tau0.005_300k", "ipg_her.py", "--nu", "1.0",
-                           "--tau", "0.005", *hopper_ipg))  # fmt: skip
-        # and there sigma drifted up (entropy 4.3 to 7.0): with Q_bar sampled sigma has a gradient
-        grid.append(hopper("ipg_nu1.0_tau0.005_qsample_300k", "ipg_her.py", "--nu", "1.0",
-                           "--tau", "0.005", "--q-bar", "sample", *hopper_ipg))  # fmt: skip
-        budget = ("--total-timesteps", "300000")
-        grid += [hopper(f"qprop_{eta}_300k", "qprop_ppo.py", "--eta-mode", eta, *budget)
-                 for eta in ("conservative", "batch-conservative")]  # fmt: skip
-        more_critic = ("--critic-steps", "2048", "--learning-starts", "10000")
-        grid.append(hopper("qprop_batch-conservative_critic2048_300k", "qprop_ppo.py",
-                           *more_critic, *budget))  # fmt: skip
-    elif suite == "hopper":  # issue 29: the off-policy end in TD3's update regime, fresh seeds
-        seed_1m = seeds[:1] or (7,)  # the 1M figure: one seed none of the others used
-        fresh, fresh2, fresh3 = seeds or (8, 9, 10), seeds or (11, 12, 13), seeds or (14, 15, 16)
-        fresh4 = seeds or (17, 18, 19)
-        seeds = seeds or (4, 5, 6)  # the regime was screened on seed 1 (results.md)
-        budget = ("--total-timesteps", "300000")
-        # an update every 256 steps, one critic step per environment step, 128 policy steps
-        td3 = (*budget, "--num-envs", "1", "--num-steps", "256", "--critic-steps", "256",
-               "--update-epochs", "8", "--num-minibatches", "16", "--learning-rate", "3e-4",
-               "--gamma", "0.99", "--tau", "0.005", "--hidden", "256", "--twin-critic",
-               "--target-std", "0.3", "--q-bar", "sample", "--learning-starts", "10000",
-               "--eval-freq", "25600", "--eval-episodes", "10")  # fmt: skip
-        td3 += ("--resume-freq", "51200")  # runs in parts
-        grid = [hopper("ppo_kl_300k", "ppo_kl.py", *budget)]
-        grid += [hopper(f"ipg_td3_nu{nu}_300k", "ipg_her.py", "--nu", str(nu), *td3)
-                 for nu in (1.0, 0.5)]  # fmt: skip
-        # mu(s) beyond the bounds, where the clipping critic gives no gradient (results.md)
-        grid.append(hopper("ipg_td3_bounds_nu1.0_300k", "ipg_her.py", "--nu", "1.0", *td3,
-                           "--bounds-loss", "1.0"))  # fmt: skip
-        # TD3's exploration noise (0.1) with the KL target scaled by (0.3 / 0.1)^2, so that the
-        # mean's step per update stays what it was at 0.3; screened on seed 1 after 4-6 were seen
-        narrow = [f if f != "0.3" else "0.1" for f in td3] + ["--kl-target", "0.9"]
-        grid.append(("ipg_td3_narrow_nu1.0_300k", "ipg_her.py", "Hopper-v5",
-                     ("--nu", "1.0", *narrow, "--bounds-loss", "1.0"), fresh))  # fmt: skip
-        # the critic's term at scale 1: "unbiased" divides it by the std of advantages no term
-        # uses at nu = 1, which swung 0.7-84 within 40 updates (results.md)
-        grid.append(("ipg_td3_paper_nu1.0_300k", "ipg_her.py", "Hopper-v5",
-                     ("--nu", "1.0", *narrow, "--bounds-loss", "1.0", "--normalization", "paper"),
-                     fresh2))  # fmt: skip
-        # and its critic's target at a' ~ pi(s'), screened by branching on seeds 1-2 (results.md)
-        grid.append(("ipg_td3_paper_sampled_nu1.0_300k", "ipg_her.py", "Hopper-v5",
-                     ("--nu", "1.0", *narrow, "--bounds-loss", "1.0", "--normalization", "paper",
-                      "--critic-target", "sample"), fresh3))  # fmt: skip
-        # the nu = 1 row again on fresh trios of its own: a second (14-16) and a third (17-19),
-        # and nu = 0.5 on the third, where both ends ran side by side (the mixing question)
-        grid += [(f"ipg_td3_nu{nu}_300k", "ipg_her.py", "Hopper-v5", ("--nu", str(nu), *td3), trio)
-                 for nu, trio in ((1.0, fresh3), (1.0, fresh4), (0.5, fresh4))
-                 if trio != seeds]  # fmt: skip
-        grid += [("ppo_kl_300k", "ppo_kl.py", "Hopper-v5", budget, trio)
-                 for trio in (fresh, fresh2, fresh3, fresh4) if trio != seeds]  # fmt: skip
-        to_1m = ("--nu", "1.0", "--total-timesteps", "1000000", *td3[len(budget) :])
-        grid += [("ipg_td3_nu1.0_1M", "ipg_her.py", "Hopper-v5", to_1m, seed_1m)]
-    elif suite == "push":  # measured with FetchReach's defaults; ipg_her.py now has Push's own
-        seeds = seeds or (1, 2, 3)
-        budget = ("--total-timesteps", str(push_steps), "--eval-freq", "25000")
-        budget += ("--resume-freq", "50000")  # a run goes on after an interruption
-        name = f"ipg_her_{push_steps // 1000}k"
-        sample = (*budget, "--q-bar", "sample")
-        # nu 0.8: the likelihood-ratio term gives sigma a signal, which nu = 1 lacks (its entropy
-        # climbs under the KL penalty alone); the best middle nu on FetchReach
-        mixed = (*budget, "--nu", "0.8")
-        grid = [(name, "ipg_her.py", "FetchPush-v4", budget),
-                (f"{name}_qsample", "ipg_her.py", "FetchPush-v4", sample),
-                (f"{name}_nu0.8", "ipg_her.py", "FetchPush-v4", mixed)]  # fmt: skip
-    elif suite == "fetch":  # evaluated every 10,000 steps on 50 episodes, resumable
-        every = ("--eval-freq", "10000", "--eval-episodes", "50", "--resume-freq", "50000")
-        tasks = {"FetchPush-v4": (300_000, (4, 5, 6, 7, 8)),  # its settings were tuned on 1-3
-                 "FetchPickAndPlace-v4": (500_000, (4, 5, 6)),  # its settings tuned on 1-3
-                 "FetchSlide-v4": (1_000_000, (7, 8, 9))}  # tuned on 1, 2, 5, 6  # fmt: skip
-        one = ("--no-twin-critic",)  # the defaults before the twin critic (its measured gain)
-        grid = [Run(f"ipg_her{critic}_{steps // 1000}k", "ipg_her.py", env_id, seed,
-                    ("--total-timesteps", str(steps), *every, *flags))
-                for env_id, (steps, task_seeds) in tasks.items()
-                for critic, flags in (("", ()), ("_1critic", one))
-                if critic == "" or env_id == "FetchPush-v4"
-                for seed in seeds or task_seeds]  # fmt: skip
-        # PickAndPlace's earlier defaults, one sigma rule for all dimensions: with grasped starts
-        # (fresh seeds), and before them (tuning seeds) with and without the twin critic
-        summed = ("--total-timesteps", "500000", *every, "--target-std", "1.0")
-        nograsp = ("--grasped-start", "0")
-        grid += [Run(f"ipg_her_{name}_500k", "ipg_her.py", "FetchPickAndPlace-v4", seed,
-                     (*summed, *flags))
-                 for name, flags in (("grasped", ()), ("nograsp", nograsp),
-                                     ("nograsp_1critic", (*nograsp, *one)))
-                 for seed in seeds or ((4, 5, 6) if name == "grasped" else (1, 2, 3))]  # fmt: skip
-        # Slide before its annealed learning rates: its defaults then (seeds 4-6, fresh then), and
-        # Push's defaults (one sigma rule for all dimensions, the action penalty)
-        slide = ("--total-timesteps", "1000000", *every, "--no-anneal-lr")
-        grid += [Run("ipg_her_constlr_1000k", "ipg_her.py", "FetchSlide-v4", seed, slide)
-                 for seed in seeds or (4, 5, 6)]  # fmt: skip
-        grid += [Run("ipg_her_sigma1_1000k", "ipg_her.py", "FetchSlide-v4", seed,
-                     (*slide, "--target-std", "1.0", "--action-l2", "1.0", "--bounds-loss", "0.0"))
-                 for seed in seeds or (1, 2, 3)]  # fmt: skip
-        # mixing asked again with Push's defaults: nu 0.5 and 0.8 against nu = 1 above, 200k; Push's
-        # --normalization paper weighs the terms nu sigma_A : (1 - nu), so eq. 10's nu: "_eq10"
-        eq10 = ("_eq10", ("--normalization", "unbiased"))
-        return grid + [Run(f"ipg_her{kind}_nu{nu}_200k", "ipg_her.py", "FetchPush-v4", seed,
-                           ("--total-timesteps", "200000", "--nu", str(nu), *every, *flags))
-                       for kind, flags in (("", ()), ("_1critic", one), eq10)
-                       for nu in (0.8, 0.5)
-                       for seed in seeds or (4, 5, 6)]  # fmt: skip
-    else:  # quick
-        seeds = seeds or (1,)
-        tiny = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4")
-        tiny += ("--update-epochs", "2", "--eval-episodes", "1")
-        tiny_ipg = ("--total-timesteps", "300", "--critic-steps", "4", "--eval-freq", "100")
-        tiny_ipg += ("--eval-episodes", "2")
-        grid = [
-            hopper("ppo_kl", "ppo_kl.py", "--total-timesteps", "512", *tiny),
-            hopper(
-                "qprop_ppo",
-                "qprop_ppo.py",
-                "--total-timesteps",
-                "512",
-                "--learning-starts",
-                "256",
-                "--critic-steps",
-                "4",
-                *tiny,
-            ),  # fmt: skip
-            fetch(
-                "ppo_kl",
-                "ppo_kl.py",
-                "--total-timesteps",
-                "300",
-                "--num-envs",
-                "2",
-                "--num-steps",
-                "50",
-                "--num-minibatches",
-                "4",
-                "--eval-episodes",
-                "2",
-            ),  # fmt: skip
-            fetch("ipg", "ipg_her.py", "--no-her", *tiny_ipg),
-            fetch("ipg_her", "ipg_her.py", *tiny_ipg),
-        ]
-    return [
-        Run(name, script, env_id, seed, flags)
-        for name, script, env_id, flags, *own_seeds in grid  # a row may name its own seeds
-        for seed in (own_seeds[0] if own_seeds else seeds)
-    ]
+    """``SUITES[suite]`` row by row, each row on its seeds (its own, else the suite's), or on
+    ``seeds`` when given, of which a row of one seed of its own (a long run) takes the first. A
+    run an earlier row gives already is not repeated. ``push_steps``: the push suite's budget."""
+    suite_seeds, rows = SUITES[suite]
+    fill = lambda text: text.format(steps=push_steps, k=push_steps // 1000)
+    runs = []
+    for name, script, env_id, flags, *own in rows:
+        row_seeds = own[0] if own else suite_seeds
+        row_seeds = (seeds[:1] if own and len(row_seeds) == 1 else seeds) or row_seeds
+        runs += [Run(fill(name), script, env_id, seed, tuple(map(fill, flags)))
+                 for seed in row_seeds]  # fmt: skip
+    return list(dict.fromkeys(runs))
 
 
 STOPPED, RUNNING, LOCK = [], set(), threading.RLock()  # the signals received, the children

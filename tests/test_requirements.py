@@ -1,7 +1,7 @@
 """requirements.txt carries every package the product imports (the README's set-up installs it
-alone): each module-level import of a third-party module in the scripts, ``common/`` and
-``benchmarks/`` must come from a distribution that requirements.txt names. CI proves the same
-in a bare venv (``.ci/run``); this test says which import lacks its line."""
+alone): each module-level import of a third-party module in the scripts, ``common/``,
+``benchmarks/`` and its probes must come from a distribution that requirements.txt names. CI
+proves the same in a bare venv (``.ci/run``); this test says which import lacks its line."""
 
 import ast
 import importlib.metadata
@@ -11,12 +11,13 @@ import sys
 from conftest import ROOT
 
 # run in another environment, named in their docstrings: the anchors' venv with Stable-Baselines3
-OTHER_VENV = {"benchmarks/td3_hopper.py"}
+OTHER_VENV = {"benchmarks/probes/td3_hopper.py"}
 
 
 def product_files() -> list:
-    files = [*ROOT.glob("*.py"), *ROOT.glob("common/*.py"), *ROOT.glob("benchmarks/*.py")]
-    return [f for f in files if str(f.relative_to(ROOT)) not in OTHER_VENV]
+    folders = ("*.py", "common/*.py", "benchmarks/*.py", "benchmarks/probes/*.py")
+    files = [f for pattern in folders for f in ROOT.glob(pattern) if not f.stem.startswith("test_")]
+    return [f for f in files if f.relative_to(ROOT).as_posix() not in OTHER_VENV]
 
 
 def module_level_imports(path) -> set[str]:

@@ -1,4 +1,4 @@
-"""A peer for goal 4 of issue 29: Stable-Baselines3 TD3 on Hopper-v5, its training return.
+"""A peer for IPG's off-policy end: Stable-Baselines3 TD3 on Hopper-v5, its training return.
 
 Where IPG's off-policy end lags PPO-KL at 300k steps, is that our learner, or what a TD3-like
 learner does at that budget? TD3 with its author's settings (Fujimoto et al. 2018 and their
@@ -7,7 +7,7 @@ delay 2, target smoothing 0.2 clipped at 0.5) and our rows' 10,000 steps of unif
 first. Needs Stable-Baselines3, so it runs with the anchors' virtual environment
 (``../shared/anchors/README.md``, plus ``gymnasium[mujoco]==1.4.0`` for Hopper's imports):
 
-    OMP_NUM_THREADS=1 /tmp/anchor-venv/bin/python benchmarks/td3_hopper.py --seed 1 \\
+    OMP_NUM_THREADS=1 /tmp/anchor-venv/bin/python benchmarks/probes/td3_hopper.py --seed 1 \\
         --steps 153600 --out benchmarks/runs/screens/td3
 
 Writes ``DIR/td3_seed{S}.json`` (every training episode's end step and return, the wall time)

@@ -1,6 +1,6 @@
-"""How much of the learning could hide behind FetchReach's stepping (issue 31)? A probe only.
+"""How much of the learning could hide behind FetchReach's stepping? A probe only.
 
-    OMP_NUM_THREADS=1 python benchmarks/overlap_probe.py
+    OMP_NUM_THREADS=1 python benchmarks/probes/overlap_probe.py
 
 Times 3,000 environment steps (two FetchReach-v4 envs, random actions) and 1,500 critic-sized
 Adam steps (batch 256, 17 inputs, two 64-wide layers): each alone, then (a) the stepping in a

@@ -1,6 +1,6 @@
 """What the exploration noise costs a run's last policy: its mean against its own Gaussian samples.
 
-    python benchmarks/noise_cost.py RUN_FOLDER [RUN_FOLDER ...] [--episodes 10]
+    python benchmarks/probes/noise_cost.py RUN_FOLDER [RUN_FOLDER ...] [--episodes 10]
 
 Reads each run folder's ``resume.pt`` (its policy at the last resume point: no ``--save-model``
 needed) and plays the same fresh episodes (reset seeds 1000, 1001, ...) with the mean action and
@@ -14,7 +14,7 @@ import sys
 import numpy as np
 import torch
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path.insert(0, os.path.abspath(os.path.join(__file__, "../../..")))  # the project root
 from common import checkpoint  # noqa: E402
 from common.evaluate import Policy  # noqa: E402
 

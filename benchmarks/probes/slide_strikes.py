@@ -3,9 +3,10 @@ stop (short of the goal, past it, or beside it), how hard the puck was struck an
 the exploring policy slid in training, and what scripted pushes do. ``--gains``: the success of
 harder pushes on the same aim; ``--critic``: whether the run's critic asks for one.
 
-    python benchmarks/slide_strikes.py RUN_FOLDER [--episodes 200] [--gains 1.1 1.2] [--critic]
+    python benchmarks/probes/slide_strikes.py RUN_FOLDER [--episodes 200] [--gains 1.1 1.2] \\
+        [--critic]
 
-RUN_FOLDER is an ``ipg_her.py`` run folder with a ``resume.pt`` (``--critic`` needs one) or a
+RUN_FOLDER is an ``ipg_her_recipe.py`` run folder with a ``resume.pt`` (``--critic`` needs one) or a
 ``model.pt``. Speeds are the environment's own velocities (metres per step of 0.04 s) along the
 puck's line to its goal.
 """
@@ -18,8 +19,8 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-import ipg_her  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the project root
+import ipg_her_recipe  # noqa: E402
 from common import checkpoint, cli  # noqa: E402
 from common.evaluate import Policy  # noqa: E402
 
@@ -97,10 +98,10 @@ def policy_strikes(policy, seeds: range, gain: float = 1.0) -> np.ndarray:
 
 
 def critic(content: dict) -> torch.nn.Module:
-    """The run's critic Q_w from its ``resume.pt``, as ``ipg_her.py`` built it."""
+    """The run's critic Q_w from its ``resume.pt``, as ``ipg_her_recipe.py`` built it."""
     a, state = content["args"], content["qf"]
-    qf = ipg_her.QNetwork(state["net.0.weight"].shape[1] - 4, 4, a["hidden"], -np.ones(4),
-                          np.ones(4), a["twin_critic"])  # fmt: skip
+    qf = ipg_her_recipe.QNetwork(state["net.0.weight"].shape[1] - 4, 4, a["hidden"], -np.ones(4),
+                          np.ones(4), a.get("twin_critic", False))  # fmt: skip
     qf.load_state_dict(state)
     return qf
 

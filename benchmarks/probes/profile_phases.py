@@ -1,9 +1,9 @@
 """Where a run's time goes: a script under the py-spy sampling profiler, its samples summed into
 phases (stepping, policy inference, normalisation, replay, critic steps, policy update, ...).
 
-    python benchmarks/profile_phases.py ppo_kl.py -- --env-id Hopper-v5 --total-timesteps 40960 \
-        --eval-freq 0 --eval-episodes 1
-    python benchmarks/profile_phases.py ipg_her.py -- --env-id FetchReach-v4 --seed 1
+    python benchmarks/probes/profile_phases.py ppo_kl.py -- --env-id Hopper-v5 \
+        --total-timesteps 40960 --eval-freq 0 --eval-episodes 1
+    python benchmarks/probes/profile_phases.py ipg_her.py -- --env-id FetchReach-v4 --seed 1
 
 runs the script under ``py-spy record`` (200 samples a second, read from outside the process, so
 the run keeps its speed), then gives every sample to the first phase of ``PHASES`` whose rule its
@@ -23,20 +23,21 @@ from dataclasses import dataclass
 
 import tyro
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-# (phase, names of which one must be on the stack, the file it must be in, a name that must be
+ROOT = os.path.abspath(os.path.join(__file__, "../../.."))  # the project root
+# (phase, names of which one must be on the stack, the files it must be in, a name that must be
 # outside it): a sample goes to the first phase whose rule its stack matches
 PHASES = (
-    ("evaluation", ("evaluate", "finished", "evaluate_policy"), "common/evaluate.py", None),
+    ("evaluation", ("evaluate", "finished", "evaluate_policy"), ("common/evaluate.py",), None),
     ("stepping", ("SyncVectorEnv.step",), None, None),
-    ("replay writes", ("add",), "common/her.py", None),
+    ("replay writes", ("add",), ("common/replay.py", "common/her.py"), None),
     ("replay sampling", ("sample_replay",), None, None),
     ("critic steps", ("critic_step",), None, None),
     ("diagnostics", ("interpolation_report", "qprop_report", "variance_report"), None, None),
     ("policy update", ("ppo_kl_update", "qprop_update", "ipg_update"), None, None),
     ("advantages and reward scaling", ("make_batch", "control_variate", "RewardScaler.__call__"),
      None, None),
-    ("normalisation", ("update", "normalize", "__call__", "inputs"), "common/normalizer.py", None),
+    ("normalisation", ("update", "normalize", "__call__", "inputs"), ("common/normalizer.py",),
+     None),
     ("policy inference", ("dist", "_call_impl", "sample"), None, "collect_rollout"),
     ("rollout bookkeeping", ("collect_rollout",), None, None),
     ("logging and checkpoints", ("end_iteration", "record_episodes", "Run.log"), None, None),
@@ -54,10 +55,10 @@ def phase_of(stack: list[tuple[str, str]]) -> str:
     """The phase of a sample whose call stack (outermost first) is ``stack`` of (function, file);
     py-spy names methods ``Class.function``, which a rule may name either way."""
     names = [({f, f.rpartition(".")[2]}, file) for f, file in stack]
-    for phase, functions, path, within in PHASES:
+    for phase, functions, paths, within in PHASES:
         inside = [i for i, (name, _) in enumerate(names) if within is None or within in name]
         for name, file in names[inside[0] :] if inside else ():
-            if set(functions) & name and (path is None or path in file):
+            if set(functions) & name and (paths is None or any(p in file for p in paths)):
                 return phase
     return "start-up and the rest"  # imports, building envs and networks, the final flush
 

@@ -1,13 +1,14 @@
 """Where a FetchPickAndPlace run falls short: goals on the table against goals in the air, and how
 often its training episodes held the object up at all (what HER can relabel into a lift).
 
-    python benchmarks/fetch_lifts.py RUN_FOLDER [--episodes 200]
+    python benchmarks/probes/fetch_lifts.py RUN_FOLDER [--episodes 200]
 
-RUN_FOLDER is an ``ipg_her.py`` run folder with a ``resume.pt`` (``--resume-freq``). Prints the
-deterministic policy's success on fresh episodes, split by where the goal is, and the share of
-the replay buffer's episodes, in fifths of training, where the object stayed at least ``HELD_CM``
-above its start for ``HELD_STEPS`` of its 50 steps (a grasp and a lift, not a knock). The buffer
-is read in the order it was written, so for runs of at most ``--buffer-size`` steps (no wrap).
+RUN_FOLDER is an ``ipg_her_recipe.py`` run folder with a ``resume.pt`` (``--resume-freq``).
+Prints the deterministic policy's success on fresh episodes, split by where the goal is, and the
+share of the replay buffer's episodes, in fifths of training, where the object stayed at least
+``HELD_CM`` above its start for ``HELD_STEPS`` of its 50 steps (a grasp and a lift, not a knock).
+The buffer is read in the order it was written, so for runs of at most ``--buffer-size`` steps
+(no wrap).
 """
 
 import argparse
@@ -18,7 +19,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the project root
 from common import checkpoint, cli  # noqa: E402
 from common.evaluate import Policy  # noqa: E402
 

@@ -6,7 +6,7 @@ depend on the values. This is the measurement behind PPO-KL's speed paragraph in
 docs/benchmarks.md: whether a compiled training step would buy the throughput that the eager one
 lacks.
 
-    python benchmarks/update_speed.py --modes eager compile
+    python benchmarks/probes/update_speed.py --modes eager compile
 """
 
 import json
@@ -19,7 +19,7 @@ from typing import Literal
 import torch
 import tyro
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path.insert(0, os.path.abspath(os.path.join(__file__, "../../..")))  # the project root
 import ppo_kl  # noqa: E402
 
 

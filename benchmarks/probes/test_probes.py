@@ -1,0 +1,149 @@
+"""The probes' own checks, each on inputs whose answer is known by hand. They run from the
+project root with the tests: ``python -m pytest -q tests benchmarks/probes``."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[2]  # the project root: the probes run from there
+sys.path.insert(0, str(ROOT))
+import ipg_her_recipe  # noqa: E402  (slide_strikes reads the recipe's runs and critic)
+from benchmarks.probes import fetch_lifts, profile_phases, slide_strikes, update_speed  # noqa: E402
+
+
+def test_update_speed_times_the_full_eager_update():
+    timing = update_speed.time_updates("eager", update_speed.Args(repeats=1))
+    assert timing["minibatch_steps"] == 320  # 10 epochs x 32 minibatches, ppo_kl.py's defaults
+    assert 0 < timing["min_s"] <= timing["median_s"]
+
+
+def test_the_profile_gives_each_sample_to_its_phase():
+    """py-spy's raw lines (``frame;frame;... count``) summed into the phases of the docs' tables:
+    the same function (``Agent.dist``, a normaliser's ``__call__``) counts where it is called, and
+    a replay buffer's writes count in either file (``HerReplayBuffer.add`` calls its base's)."""
+    stacks = {
+        "collect_rollout (common/rollout.py:51);SyncVectorEnv.step (gymnasium/vector/"
+        "sync_vector_env.py:338);HopperEnv.step (gymnasium/envs/mujoco/hopper_v5.py:290)": 5,
+        "collect_rollout (common/rollout.py:47);Agent.dist (ppo_kl.py:120);Module._call_impl "
+        "(torch/nn/modules/module.py:1)": 3,
+        "ppo_kl_update (ppo_kl.py:155);Agent.dist (ppo_kl.py:120)": 7,
+        "collect_rollout (common/rollout.py:45);RunningMeanStd.update (common/normalizer.py:30)": 2,
+        "RewardScaler.__call__ (common/normalizer.py:110)": 1,
+        "critic_step (ipg_her.py:214);QNetwork.forward (ipg_her.py:180)": 4,
+        "sample_replay (common/replay.py:130);HerReplayBuffer.sample (common/her.py:90)": 6,
+        "collect_rollout (common/rollout.py:60);ReplayBuffer.add (common/replay.py:40)": 3,
+        "HerReplayBuffer.add (common/her.py:84);ReplayBuffer.add (common/replay.py:45)": 2,
+        "end_iteration (common/run.py:193);finished (common/evaluate.py:195)": 8,
+        "Adam.__init__ (torch/optim/adam.py:35)": 9,
+        "Run.end_iteration (common/run.py:190);SummaryWriter.add_scalar (tensorboard.py:1)": 2,
+        "QNetwork.forward (ipg_her.py:180);Module._call_impl (torch/nn/modules/module.py:1)": 1,
+    }
+    raw = "\n".join(f"<module> (ipg_her.py:1);{stack} {n}" for stack, n in stacks.items())
+    assert profile_phases.phase_samples(raw) == {
+        "stepping": 5, "policy inference": 3, "policy update": 7, "normalisation": 2,
+        "advantages and reward scaling": 1, "critic steps": 4, "replay sampling": 6,
+        "replay writes": 5, "evaluation": 8, "logging and checkpoints": 2,
+        "start-up and the rest": 10,
+    }  # fmt: skip
+
+
+def test_the_profile_of_a_tiny_run_names_its_phases(tmp_path):
+    cmd = [sys.executable, "benchmarks/probes/profile_phases.py", "ppo_kl.py", "--",
+           "--total-timesteps", "2048", "--num-envs", "2", "--num-steps", "512", "--eval-freq",
+           "0", "--eval-episodes", "1", "--log-dir", str(tmp_path)]  # fmt: skip
+    out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    lines = [json.loads(line) for line in out.stdout.splitlines()]
+    phases = {line["phase"]: line for line in lines}
+    assert {"stepping", "policy update", "all samples"} <= set(phases)
+    assert abs(sum(line["share"] for line in lines[:-1]) - 1) < 0.01
+
+
+def test_fetch_lifts_counts_a_held_lift_not_a_knock_in_time_order():
+    """A lift counts when the object stays 2 cm up for 10 steps (a knock for 9 does not), and the
+    replay buffer's episodes are read in time order (episode-major, the envs within)."""
+    start, up = 0.425, 0.425 + 0.021
+    lift = np.full(50, start)
+    lift[20:30] = up
+    knock = lift.copy()
+    knock[29] = start
+    assert fetch_lifts.held(np.array([lift, knock])).tolist() == [True, False]
+    goals = np.full((100, 2, 3), start)  # two episodes for each of two envs
+    goals[:50, 1, 2] = lift  # the second env's first episode: the second in time
+    assert fetch_lifts.replay_lifts({"achieved_goal": goals}, parts=2) == [0.5, 0.0]
+    measured = fetch_lifts.policy_by_goal(lambda obs: np.zeros(4), "FetchPickAndPlace-v4", range(4))
+    assert sum(r["episodes"] for r in measured.values()) == 4
+    assert all(r["held"] == 0 for r in measured.values() if r["episodes"])  # standing still
+
+
+def test_slide_strikes_measures_a_slide_along_and_beside_its_line():
+    """Half way to a goal 0.4 m ahead and 5 cm to its left; a goal straight along +y overshot; a
+    still policy never moves the puck and never succeeds; a scripted strike slides it."""
+    start = np.array([1.0, 0.5, 0.42])
+    half = slide_strikes.slide_outcome(start, start + [0.4, 0, 0], start + [0.2, 0.05, 0])
+    assert np.allclose(half, (0.5, 0.05))
+    past = slide_strikes.slide_outcome(start, start + [0, 0.3, 0], start + [-0.02, 0.45, 0])
+    assert np.allclose(past, (1.5, 0.02))
+    still = slide_strikes.policy_strikes(lambda obs: np.zeros(4), range(3))
+    assert still.shape == (3, 9) and still[:, 1].sum() == 0
+    assert np.allclose(still[:, 2], 0, atol=1e-3) and np.all(still[:, 4:] < 1e-3)
+    struck = [s for s in map(slide_strikes.scripted_strike, range(3)) if s]  # the full push
+    assert struck and all(slide > 0.4 and peak > 0.03 for slide, peak, *_ in struck)
+    assert all(came_in > 0.015 for _, _, came_in, *_ in struck)
+    assert np.allclose([s[3:] for s in struck], (1, 1, 0))  # along the line, main axis, other
+    halved = [s for s in (slide_strikes.scripted_strike(seed, push=0.5) for seed in range(3)) if s]
+    assert halved and np.allclose([s[3:5] for s in halved], 0.5)  # the other axis: half its own
+    assert all(0.1 < other < 0.4 for *_, other in halved)  # these lines lie off the axes
+
+
+def test_slide_strikes_gain_scales_x_and_y_only_once_the_puck_has_moved():
+    start = np.array([1.3, 0.75, 0.41])
+    policy = lambda obs: np.array([0.6, -0.3, 0.5, 0.2], np.float32)  # noqa: E731
+    act = slide_strikes.with_gain(policy, start, 1.5)
+    assert np.array_equal(act({"achieved_goal": start + [0.004, 0, 0]}, 0), policy(None))
+    pushed = act({"achieved_goal": start + [0.01, 0, 0]}, 1)
+    assert pushed.dtype == np.float32 and np.allclose(pushed, [0.9, -0.45, 0.5, 0.2])
+    assert np.allclose(slide_strikes.with_gain(policy, start, 2)({"achieved_goal": start + 1}, 2),
+                       [1.0, -0.6, 0.5, 0.2])  # clipped to the bounds  # fmt: skip
+
+
+def test_slide_strikes_reads_the_critic_at_the_step_that_moves_the_puck():
+    """A critic Q = max(a_x, 0) by hand: its slope along the line is the line's x share, and
+    pushing 1.2 times harder from a_x = 0.5 gains 0.1; a run's saved twin critic reads back."""
+    qf = ipg_her_recipe.QNetwork(3, 4, hidden=2, low=-1.0, high=1.0)
+    with torch.no_grad():
+        for layer in qf.net[::2]:
+            layer.weight.zero_(), layer.bias.zero_()
+        qf.net[0].weight[0, 3] = qf.net[2].weight[0, 0] = qf.net[4].weight[0, 0] = 1.0  # a_x
+
+    class Pushing:  # the policy's interface: its inputs and its action
+        inputs = staticmethod(lambda obs: torch.zeros(1, 3))
+        __call__ = staticmethod(lambda obs: np.array([0.5, 0, 0, 0], np.float32))
+
+    rows = slide_strikes.critic_at_contact(qf, Pushing(), range(2))
+    along = [slide_strikes.reset(gym.make("FetchSlide-v4"), seed)[3] for seed in range(2)]
+    assert np.allclose(rows[:, 1], [line[0] for line in along], atol=1e-6)
+    assert np.allclose(rows[:, 2], 0.1, atol=1e-6)
+    assert np.allclose(rows[:, 3], [0.5 * line[0] for line in along], atol=1e-6)
+    saved = ipg_her_recipe.QNetwork(24, 4, hidden=8, low=-1.0, high=1.0, twin=True)  # a run's
+    content = {"args": {"hidden": 8, "twin_critic": True}, "qf": saved.state_dict()}
+    x, a = torch.randn(5, 24), torch.randn(5, 4)
+    assert torch.equal(slide_strikes.critic(content)(x, a, True)[1], saved(x, a, True)[1])
+
+
+def test_slide_strikes_reads_far_slides_and_falls_from_the_replay_buffer_in_time_order():
+    """Two envs, two episodes each: the later episode of env 0 slides 0.6 m, the earlier of env 1
+    falls off the table; the rest stand still."""
+    start = np.array([1.3, 0.75, 0.41])
+    goals = np.tile(start, (100, 2, 1))
+    after = goals.copy()
+    after[50:, 0] += [0.6, 0, 0]  # env 0's second episode: a far slide
+    after[:50, 1, 2] -= 0.4  # env 1's first episode: off the table
+    rb = {"achieved_goal": goals, "next_achieved_goal": after}
+    assert slide_strikes.replay_slides(rb, since=0) == (0.25, 0.25)
+    assert slide_strikes.replay_slides(rb, since=0.5) == (0.5, 0.0)
