@@ -5,18 +5,22 @@
     python benchmarks/report.py --suite paper --page docs/results.md   # and into the docs site
 
 Writes into ``--results-dir`` (default ``benchmarks/results/{suite}``): ``curves.json`` (a compact
-export of every run's curves, enough to redraw everything), ``results.md`` (the table and how
-it was measured) and PNG figures in the shape of the paper's Figures 3-5. With ``--page``, the
-table and the figures go into that Markdown page of the docs site between its markers, and the
-figures into ``img/{suite}/`` beside the page (the site serves only files under ``docs/``).
+export of every run's curves, enough to redraw everything), ``results.md`` (the tables and how
+they were measured: among them one per task with the median and IQM of the final evaluation, the
+steps and training time to three levels, and the anchor, the peer to beat, where one is recorded:
+``ANCHORS`` below and ``benchmarks/results/against_sb3/results.json``) and PNG figures in the
+shape of the paper's Figures 3-5, the anchor drawn in. With ``--page``, the tables and the
+figures go into that Markdown page of the docs site between its markers, and the figures into
+``img/{suite}/`` beside the page (the site serves only files under ``docs/``).
 """
 
 import json
 import re
 import sys
 import warnings
+import zlib
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import matplotlib
@@ -50,6 +54,11 @@ ANCHORS = {  # (steps, level): first evaluations of the zoo's TQC+HER agents (v1
 }
 FRESH_SEED = 11  # mixing: the finalists ran on seeds from 11 on, the screens on seeds 1-5
 LABELS = {"ppo_kl": "PPO-KL", "qprop_ppo": "Q-Prop", "ipg": "IPG (no HER)", "ipg_her": "IPG+HER"}
+TASK_LEVELS = {  # the per-task table's levels: evaluation success, or Hopper's evaluation return
+    "Hopper-v5": ("eval/episodic_return", (1000.0, 2000.0, 3000.0)),
+}
+GOAL_LEVELS = ("eval/success_rate", (0.5, 0.7, 0.9))
+SIDE_BY_SIDE = Path(__file__).parent / "results" / "against_sb3" / "results.json"
 
 
 @dataclass
@@ -76,6 +85,8 @@ class Args:
     """also keep the runs in the suite's curves.json that the run folders lack (other machines')"""
     include_unfinished: bool = False
     """also read runs not finished yet (a long run between sessions), marked with their step"""
+    side_by_side: str = ""
+    """against_sb3.py's results.json, FetchReach's anchor (default: the committed one)"""
 
 
 def read_run(run_dir: Path) -> dict:
@@ -278,9 +289,7 @@ def table(groups: dict, window: int) -> str:
         sps = np.mean([r["charts/SPS"][-1][1] for r in runs if r.get("charts/SPS")])
         wall = np.mean([r["wall_time"] for r in runs])
         f = ".2f" if goal else ".0f"
-        mark = " †" if any("measured_on" in r for r in runs) else ""
-        mark += " ‡" if any("unfinished_at" in r for r in runs) else ""
-        rows.append(f"| {env_id} | {LABELS.get(name, name)}{mark} | {len(runs)} "
+        rows.append(f"| {env_id} | {LABELS.get(name, name)}{row_marks(runs)} | {len(runs)} "
                     f"| {final.mean():{f}} ± {final.std(ddof=1):{f}} | {np.median(final):{f}} "
                     f"| {iqm(final):{f}} | {final_eval.mean():{f}} | {reach_text} | {sps:.0f} "
                     f"| {wall:.0f} |")  # fmt: skip
@@ -323,11 +332,11 @@ def success_table(groups: dict, budgets=(2500, 5000, 10000, 30000)) -> str:
     return "\n".join(rows) if len(rows) > 2 else ""
 
 
-def first_eval_at(run: dict, level: float) -> tuple[float, float]:
-    """(step, training seconds) of the first evaluation with success >= ``level`` (NaN: none).
+def first_eval_at(run: dict, level: float, tag: str = "eval/success_rate") -> tuple[float, float]:
+    """(step, training seconds) of the first evaluation with ``tag`` >= ``level`` (NaN: none).
     Training seconds are step / ``charts/SPS`` logged at that step (SPS is steps over training
     time, evaluation excluded, carried across a resumed run's sessions)."""
-    step = next((s for s, v in run.get("eval/success_rate", []) if v >= level), np.nan)
+    step = next((s for s, v in run.get(tag, []) if v >= level), np.nan)
     sps = [v for s, v in run.get("charts/SPS", []) if s <= step]
     return step, step / sps[-1] if sps and sps[-1] > 0 else np.nan
 
@@ -357,6 +366,273 @@ def reach_table(groups: dict, levels: tuple[float, ...]) -> str:
             cells += [" / ".join(per_seed), f"{median:,.0f}" if np.isfinite(median) else "-"]
         rows.append(f"| {env_id} | {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
     return "\n".join(rows) if len(rows) > 2 else ""
+
+
+@dataclass
+class Peer:
+    """Rows from outside the suite, measured by another script on one task: the anchor we must
+    beat, or our own runs evaluated side by side with it. ``curves``: per seed, [[step, eval
+    success], ...] (empty: not recorded); ``first``: per level, each seed's step of its first
+    evaluation there (a level missing: not recorded); ``seconds``: the same in training seconds."""
+
+    label: str
+    anchor: bool
+    seeds: str
+    curves: list = field(default_factory=list)
+    first: dict = field(default_factory=dict)
+    seconds: dict = field(default_factory=dict)
+
+
+def seed_ranges(seeds) -> str:
+    """[1, 2, 3, 5, 21, 22] -> "1-3, 5, 21-22"."""
+    seeds, parts = sorted(int(s) for s in seeds), []
+    for s in seeds:
+        if parts and s == parts[-1][1] + 1:
+            parts[-1][1] = s
+        else:
+            parts.append([s, s])
+    return ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in parts)
+
+
+def load_peers(side_by_side: Path) -> dict:
+    """{env_id: [Peer]}: the TQC+HER zoo agents' first evaluations at the levels ANCHORS holds,
+    and, if its results.json is there, FetchReach's side-by-side run of benchmarks/against_sb3.py:
+    SB3 DDPG+HER (the anchor) and IPG+HER, evaluated alike."""
+    peers = defaultdict(list)
+    for env_id, points in ANCHORS.items():
+        first = {level: [float(step)] for step, level in points}
+        peers[env_id].append(Peer("TQC+HER zoo agent (anchor)", True, "1", first=first))
+    if not side_by_side.is_file():
+        return peers
+    data = json.loads(side_by_side.read_text())
+    budget = f"{data['steps']:,} steps" if "steps" in data else "its budget"
+    for key, label, anchor in (("sb3_ddpg_her", f"SB3 DDPG+HER (anchor; {budget})", True),
+                               ("ipg_her", f"IPG+HER side by side ({budget})", False)):  # fmt: skip
+        runs = data.get(key, [])
+        if not runs:
+            continue
+        curves = [[list(p) for p in r["success"]] for r in runs]
+        first = {
+            level: [first_eval_at({"eval/success_rate": c}, level)[0] for c in curves]
+            for level in GOAL_LEVELS[1]
+        }
+        seconds = {  # recorded per level, as train_s_to_0.9
+            float(m[1]): [np.nan if r.get(m[0]) is None else r[m[0]] for r in runs]
+            for m in filter(None, (re.fullmatch(r"train_s_to_([0-9.]+)", k) for k in runs[0]))
+        }
+        seeds = data.get("seeds", [])
+        seeds = f"{len(runs)} ({seed_ranges(seeds)})" if len(seeds) == len(runs) else str(len(runs))
+        peers["FetchReach-v4"].append(Peer(label, anchor, seeds, curves, first, seconds))
+    return peers
+
+
+def draw_anchors(ax, peers: list, per_episode: bool = False) -> None:
+    """The anchors among ``peers`` on a success figure, in black: a recorded curve as the median
+    over its seeds with the band from the lowest to the highest seed; first evaluations at a
+    level as stars, the levels dotted."""
+    scale = 50 if per_episode else 1  # episodes of 50 steps, as plot(per_episode=True)
+    for peer in (p for p in peers if p.anchor):
+        if peer.curves:
+            grid = np.array(sorted({s for c in peer.curves for s, _ in c}), float)
+            values = np.stack([curve_on_grid(c, grid, 1) for c in peer.curves])
+            label = f"{peer.label.split(' (')[0]}, anchor: median of {len(values)} seeds, min-max"
+            ax.plot(grid / scale, np.nanmedian(values, 0), "k-o", markersize=3, linewidth=1.2,
+                    label=label)  # fmt: skip
+            ax.fill_between(
+                grid / scale, np.nanmin(values, 0), np.nanmax(values, 0), color="k", alpha=0.1
+            )
+        else:
+            steps, levels = zip(*[(s[0], level) for level, s in peer.first.items()], strict=True)
+            ax.plot(np.array(steps) / scale, levels, "k*", markersize=10,
+                    label="TQC+HER zoo agent reached")  # fmt: skip
+            for level in levels:
+                ax.axhline(level, color="k", linestyle=":", linewidth=0.8)
+        ax.legend(fontsize=8)
+
+
+def bootstrap_interval(values, statistic, rng, n: int = 2000) -> tuple[float, float, float]:
+    """``statistic`` over seeds and its 95% percentile bootstrap interval, the seeds resampled
+    with replacement ``n`` times: (value, lo, hi); lo and hi NaN with fewer than two seeds."""
+    values = np.asarray(values, float)
+    if len(values) < 2:
+        return float(statistic(values)), np.nan, np.nan
+    resampled = [statistic(values[i]) for i in rng.integers(0, len(values), (n, len(values)))]
+    lo, hi = np.percentile(resampled, [2.5, 97.5])
+    return float(statistic(values)), float(lo), float(hi)
+
+
+def with_interval(values, statistic, rng, digits: int) -> str:
+    """The value and 95% interval of ``bootstrap_interval``: "value [lo, hi]"; the value alone
+    for one seed, "-" for none."""
+    if not len(values):
+        return "-"
+    value, lo, hi = bootstrap_interval(values, statistic, rng)
+    text = f"{value:,.{digits}f}"
+    return text if np.isnan(lo) else f"{text} [{lo:,.{digits}f}, {hi:,.{digits}f}]"
+
+
+def duration(seconds: float) -> str:
+    """12.3 s, 45 s, 17 min, 2.5 h; "-" for never."""
+    if not np.isfinite(seconds):
+        return "-"
+    if seconds < 100:
+        return f"{seconds:.1f} s" if seconds < 10 else f"{seconds:.0f} s"
+    return f"{seconds / 60:.0f} min" if seconds < 6000 else f"{seconds / 3600:.1f} h"
+
+
+def reach_cells(steps, seconds, running: int = 0) -> tuple[str, str]:
+    """The median over all seeds of the steps, and of the training time, to a level's first
+    evaluation, a seed that never got there counting as never (``median_steps``), and how many
+    got there (of the others, how many are still running). Time "n/a" when not recorded."""
+    steps = np.asarray(steps, float)
+    median = median_steps(steps)
+    count = f"{int(np.isfinite(steps).sum())}/{len(steps)}"
+    count += f"; {running} still running" if running else ""
+    text = f"{median:,.0f} ({count})" if np.isfinite(median) else f"not reached ({count})"
+    if seconds is None:
+        return text, "n/a"
+    seconds = np.where(np.isfinite(steps), np.asarray(seconds, float), np.inf)
+    return text, "n/a" if np.isnan(seconds).any() else duration(float(np.median(seconds)))
+
+
+def eval_every(curves: list) -> str:
+    """The steps between evaluations, or their range over curves: each curve's most frequent gap
+    (the earliest of equally frequent ones), so that a last evaluation off the schedule, at the
+    end of the budget, does not count."""
+    gaps = set()
+    for steps in ([s for s, _ in c] for c in curves if len(c) > 1):
+        diffs = [int(d) for d in np.diff(steps)]
+        gaps.add(max(diffs, key=lambda d: (diffs.count(d), -diffs.index(d))))
+    gaps = sorted(gaps)
+    if not gaps:
+        return "-"
+    return f"{gaps[0]:,}" if len(gaps) == 1 else f"{gaps[0]:,}-{gaps[-1]:,}"
+
+
+def row_marks(runs: list) -> str:
+    """† for runs merged from an earlier export, ‡ for runs still in progress."""
+    mark = " †" if any("measured_on" in r for r in runs) else ""
+    return mark + (" ‡" if any("unfinished_at" in r for r in runs) else "")
+
+
+def task_levels(env_id: str) -> tuple[str, tuple[float, ...]]:
+    """The per-task table's figure and levels: evaluation success on goal tasks, else return."""
+    if env_id in TASK_LEVELS:
+        return TASK_LEVELS[env_id]
+    return GOAL_LEVELS if env_id.startswith("Fetch") else ("eval/episodic_return", ())
+
+
+def task_tables(groups: dict, peers: dict, seed: int) -> str:
+    """One table per task, a row per algorithm, then the task's peers: the seeds; the median and
+    the IQM over seeds of each seed's last evaluation, each with its 95% bootstrap interval
+    (resampled from a generator of its own per row, so that no row moves another's); per level,
+    the median steps and training time to the first evaluation there; evaluation interval and
+    steps per second (as the first table's SPS)."""
+    blocks = []
+    for env_id in sorted({g.split("__")[1] for g in groups}):
+        tag, levels = task_levels(env_id)
+        goal, digits = tag == "eval/success_rate", 2 if tag == "eval/success_rate" else 0
+        head = "".join(f" first eval >= {x:g}: median steps (seeds there) | median time |"
+                       for x in levels)  # fmt: skip
+        rows = [f"| algorithm | seeds | final eval: median [95% CI] | final eval: IQM [95% CI] "
+                f"|{head} eval every | steps/s |",
+                "|" + " --- |" * (6 + 2 * len(levels))]  # fmt: skip
+        for group in sorted(g for g in groups if g.endswith(f"__{env_id}")):
+            name = group.split("__")[0]
+            seeds = sorted(groups[group], key=int)
+            runs = [groups[group][s] for s in seeds]
+            rng = np.random.default_rng([seed, zlib.crc32(group.encode())])
+            finals = [r[tag][-1][1] for r in runs if r.get(tag)]
+            of = f" ({len(finals)} seeds)" if len(finals) < len(runs) else ""
+            cells = [f"{len(runs)} ({seed_ranges(seeds)})",
+                     with_interval(finals, np.median, rng, digits) + of,
+                     with_interval(finals, iqm, rng, digits) + of]  # fmt: skip
+            for level in levels:
+                reached = [first_eval_at(r, level, tag) for r in runs]
+                running = sum(1 for (step, _), r in zip(reached, runs, strict=True)
+                              if "unfinished_at" in r and not np.isfinite(step))  # fmt: skip
+                cells += reach_cells(*zip(*reached, strict=True), running)
+            sps = [r["charts/SPS"][-1][1] for r in runs if r.get("charts/SPS")]
+            cells += [eval_every([r.get(tag, []) for r in runs]),
+                      f"{np.mean(sps):.0f}" if sps else "-"]  # fmt: skip
+            label = LABELS.get(name, name) + row_marks(runs)
+            rows.append(f"| {label} | " + " | ".join(cells) + " |")
+        for peer in peers.get(env_id, []) if goal else []:
+            rng = np.random.default_rng([seed, zlib.crc32(peer.label.encode())])
+            finals = [c[-1][1] for c in peer.curves]
+            cells = [peer.seeds, with_interval(finals, np.median, rng, digits) if finals else "n/a",
+                     with_interval(finals, iqm, rng, digits) if finals else "n/a"]  # fmt: skip
+            for level in levels:
+                recorded = level in peer.first
+                cells += reach_cells(peer.first[level], peer.seconds.get(level)) if recorded \
+                    else ("n/a", "n/a")  # fmt: skip
+            cells += [eval_every(peer.curves) if peer.curves else "n/a", "n/a"]
+            rows.append(f"| {peer.label} | " + " | ".join(cells) + " |")
+        what = "evaluation success" if goal else "evaluation return"
+        anchors = [p.label.split(" (")[0] for p in peers.get(env_id, []) if p.anchor and goal]
+        anchor = f"anchor: {', '.join(anchors)}" if anchors else "no anchor recorded for this task"
+        levels_text = f"levels: {what} {' / '.join(f'{x:g}' for x in levels)}; " if levels else ""
+        blocks.append(f"**{env_id}** ({levels_text}{anchor})\n\n" + "\n".join(rows))
+    return "\n\n".join(blocks)
+
+
+def task_tables_note(groups: dict, peers: dict) -> str:
+    """The per-task tables' caption: how each column was derived, the anchors' sources, and how
+    far the suite's wall time is from the training time the time columns are derived from."""
+    runs = [r for g in groups.values() for r in g.values() if r.get("charts/SPS")]
+    ratios = [r["wall_time"] * r["charts/SPS"][-1][1] / r["charts/SPS"][-1][0] for r in runs
+              if r.get("wall_time") and r["charts/SPS"][-1][1] > 0]  # fmt: skip
+    envs = {g.split("__")[1] for g in groups}
+    hopper = any(task_levels(e)[0] == "eval/episodic_return" for e in envs)
+    goal = any(task_levels(e)[0] == "eval/success_rate" for e in envs)
+    shown = {p.label: p for e in envs if task_levels(e)[0] == "eval/success_rate"
+             for p in peers.get(e, [])}  # fmt: skip
+    what = ["the success rate (Fetch)"] * goal + ["the mean return (Hopper)"] * hopper
+    what = " and ".join(what)
+    text = (
+        "Per task: *final eval*: each seed's last evaluation of the deterministic policy, "
+        f"{what}; over seeds its median and its interquartile mean (IQM: the mean of the middle "
+        "half, of all with three seeds or fewer), each with a 95% percentile bootstrap interval "
+        "over seeds (2,000 resamples; none with one seed). *first "
+        "eval >= x*: the median over all seeds of the step of the first evaluation at or above x, "
+        "a seed that never got there counting as never (*not reached* when half of them or more "
+        "did not), with how many got there. *median time*: training time, derived, as the export "
+        "keeps no clock per step: each seed's step over the `charts/SPS` it logged at that step "
+        "(steps per second of training so far, evaluation excluded), then the median over seeds "
+        "as for the steps."
+    )
+    if ratios:
+        text += (
+            f" Over whole runs, this suite's wall time (first table) is {min(ratios):.2f}-"
+            f"{max(ratios):.2f} times the training time so derived."
+        )
+    if goal:
+        text += " Fetch levels: evaluation success 0.5, 0.7 and 0.9."
+    if hopper:
+        text += (
+            " Hopper levels: evaluation return 1000, 2000 and 3000 (the span of the paper's "
+            "Figure 3; the first table's threshold, 2000, is on the mean training return)."
+        )
+    text += (
+        " *eval every*: steps between evaluations, the resolution of the steps columns. "
+        "*steps/s*: as *SPS* in the first table."
+    )
+    if any("SB3" in label for label in shown):
+        text += (
+            " *SB3 DDPG+HER (anchor)*: Stable-Baselines3's DDPG+HER with the HER paper's settings, "
+            "run one seed after the other with IPG+HER, both evaluated alike, by "
+            "`benchmarks/against_sb3.py` (`benchmarks/results/against_sb3/results.json`), so "
+            "its *final eval* is at that run's budget; its time is training "
+            "seconds (its evaluations' subtracted), recorded to 0.9 only. *IPG+HER side by side*: "
+            "ours in that same run, its times recorded to 0.9 only."
+        )
+    if any("TQC" in label for label in shown):
+        text += (
+            " *TQC+HER zoo agent (anchor)*: the first evaluations of rl-baselines3-zoo's "
+            "published TQC+HER agent for the task (v1 environment, one env, one seed) at the "
+            "levels recorded (`ANCHORS` in report.py)."
+        )
+    return text + " n/a: not recorded.\n\n"
 
 
 def mean_and_interval(values: np.ndarray, rng, digits: int) -> str:
@@ -433,9 +709,9 @@ def diagnostics_table(groups: dict) -> str:
     return "\n".join(rows) if len(rows) > 2 else ""
 
 
-def draw_paper_figures(groups: dict, results: Path, rng) -> list[str]:
+def draw_paper_figures(groups: dict, results: Path, rng, peers: dict | None = None) -> list[str]:
     """The paper's Figures 3 (Hopper: length and return), 4 (FetchReach: entropy and return) and
-    5 (success)."""
+    5 (success, with FetchReach's anchor among ``peers``)."""
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     plot(
         axes[0],
@@ -487,6 +763,7 @@ def draw_paper_figures(groups: dict, results: Path, rng) -> list[str]:
         rng,
         per_episode=True,
     )
+    draw_anchors(ax, (peers or {}).get("FetchReach-v4", []), per_episode=True)
     fig.tight_layout()
     fig.savefig(results / "fig5_fetchreach_success.png", dpi=100)
     return ["fig3_hopper.png", "fig4_fetchreach.png", "fig5_fetchreach_success.png"]
@@ -624,9 +901,10 @@ def main(args: Args) -> int:
                                      for seed, run in runs.items()}  # fmt: skip
         (results / "curves.json").write_text(json.dumps(groups, separators=(",", ":")))
     rng = np.random.default_rng(args.seed)
+    peers = load_peers(Path(args.side_by_side) if args.side_by_side else SIDE_BY_SIDE)
 
     if args.suite in ("paper", "quick"):  # quick has the paper's shape
-        figures = draw_paper_figures(groups, figures_dir, rng)
+        figures = draw_paper_figures(groups, figures_dir, rng, peers)
     elif args.suite == "mixing":
         figures = draw_mixing_figures(groups, figures_dir, rng)
     else:  # one figure per task with every variant of the suite
@@ -637,14 +915,9 @@ def main(args: Args) -> int:
             if env_id.startswith("Fetch"):
                 plot(ax, groups, names, env_id, "eval/success_rate", rng,
                      per_episode=args.suite != "fetch", median=args.suite == "fetch")  # fmt: skip
+                draw_anchors(ax, peers.get(env_id, []), per_episode=args.suite != "fetch")
             else:
                 plot(ax, groups, names, env_id, "charts/episodic_return", rng, smooth=20)
-            if args.suite == "fetch" and env_id in ANCHORS:  # the level to beat
-                steps, levels = zip(*ANCHORS[env_id], strict=True)
-                ax.plot(steps, levels, "k*", markersize=10, label="TQC+HER zoo agent reached")
-                for level in levels:
-                    ax.axhline(level, color="k", linestyle=":", linewidth=0.8)
-                ax.legend(fontsize=8)
             fig.tight_layout()
             figures.append(f"{args.suite}_{env_id}.png")
             fig.savefig(figures_dir / figures[-1], dpi=100)
@@ -682,8 +955,10 @@ def main(args: Args) -> int:
             f"at the last step each logged: {'; '.join(unfinished)}. Their *final* columns are "
             "the figures at that step, not at the budget.\n\n"
         )
+    per_task = task_tables(groups, peers, args.seed)
+    per_task_block = f"{per_task}\n\n{task_tables_note(groups, peers)}" if per_task else ""
     success = success_table(groups, BUDGETS.get(args.suite, (2500, 5000, 10000, 30000)))
-    success_block = f"{success}\n\n" if success else ""
+    success_block = per_task_block + (f"{success}\n\n" if success else "")
     reach = reach_table(groups, LEVELS[args.suite]) if args.suite in LEVELS else ""
     if reach:
         success_block += (

@@ -1,5 +1,6 @@
 """benchmarks/report.py's statistics against values computed by hand, on hand-made event files."""
 
+import json
 import re
 import subprocess
 import sys
@@ -376,3 +377,142 @@ def test_curves_go_on_dashed_past_the_shortest_seed():
     assert x_dashed.max() == 20 and y_dashed[-1] == pytest.approx(0.6)
     assert dashed.get_linestyle() == "--" and solid.get_linestyle() == "-"
     plt.close(fig)
+
+
+def test_iqm_interval_against_the_exact_bootstrap_distribution():
+    """Four seeds: a resample's IQM (the mean of its middle two) is the lowest seed when three or
+    four of the four draws are that seed, P = 13/256 > 2.5%, so the 95% interval of the IQM is
+    exactly [lowest, highest]; the mean's needs all four, P = 1/256, so its interval lies
+    strictly inside. Five seeds: the IQM (middle three) is neither the median nor the mean."""
+    values = np.array([6.0, 8.0, 10.0, 100.0])
+    assert report.bootstrap_interval(values, report.iqm, np.random.default_rng(0)) == (9.0, 6, 100)
+    _, lo, hi = report.bootstrap_interval(values, np.mean, np.random.default_rng(0))
+    assert 6 < lo and hi < 100
+    point, lo, hi = report.bootstrap_interval([7.0], report.iqm, np.random.default_rng(0))
+    assert point == 7.0 and np.isnan(lo) and np.isnan(hi)  # one seed: no interval
+    finals = [0.0, 100.0, 500.0, 600.0, 10000.0]
+    groups = {"algo__Hopper-v5": {str(s): {"eval/episodic_return": [[1000, v]]}
+                                  for s, v in enumerate(finals)}}  # fmt: skip
+    row = report.task_tables(groups, {}, 0).splitlines()[4]
+    median, iqm = row.split(" | ")[2:4]
+    assert median.startswith("500 [") and iqm.startswith("400 [")  # (100 + 500 + 600) / 3
+    for cell, point in ((median, 500), (iqm, 400)):
+        lo, hi = map(float, re.findall(r"[\d.]+", cell.split("[")[1].replace(",", "")))
+        assert 0 <= lo < point < hi <= 10000
+
+
+def test_time_to_threshold_is_each_seeds_step_over_the_sps_it_logged_there():
+    """Per level: the median over all seeds of the first evaluation's step, and of each seed's
+    own training time to it (its step over the charts/SPS logged at that step, not its final
+    rate); a seed that never got there counts as never."""
+    groups = {"ipg_her__FetchPush-v4": {
+        # 0.5 at 2,000 steps, logged at 50 steps/s: 40 s; 0.7 and 0.9 at 3,000 (SPS 100): 30 s
+        "1": {"eval/success_rate": [[1000, 0.2], [2000, 0.6], [3000, 0.95]],
+              "charts/SPS": [[1000, 100], [2000, 50], [3000, 100]]},
+        # 0.5 at 1,000 steps at 20 steps/s: 50 s; 0.7 at 2,000 (SPS 40): 50 s; 0.9 never
+        "2": {"eval/success_rate": [[1000, 0.5], [2000, 0.7], [3000, 0.8]],
+              "charts/SPS": [[1000, 20], [2000, 40], [3000, 1000]]},
+        "3": {"eval/success_rate": [[1000, 0.1], [2000, 0.1], [3000, 0.1]],  # never
+              "charts/SPS": [[1000, 10], [2000, 10], [3000, 10]]},
+    }}  # fmt: skip
+    assert report.first_eval_at(groups["ipg_her__FetchPush-v4"]["1"], 0.5) == (2000, 40.0)
+    lines = report.task_tables(groups, {}, 0).splitlines()
+    assert lines[0] == "**FetchPush-v4** (levels: evaluation success 0.5 / 0.7 / 0.9; " \
+        "no anchor recorded for this task)"  # fmt: skip
+    cells = lines[4].strip(" |").split(" | ")
+    # medians of (2,000, 1,000, never) and (40 s, 50 s, never); of (3,000, 2,000, never) and
+    # (30 s, 50 s, never); of (3,000, never, never): never
+    assert cells[4:12] == ["2,000 (2/3)", "50 s", "3,000 (2/3)", "50 s",
+                           "not reached (1/3)", "-", "1,000", "370"]  # fmt: skip
+    hopper = {"qprop__Hopper-v5": {"1": {"eval/episodic_return": [[100, 900.0], [200, 2500.0]],
+                                         "charts/SPS": [[100, 10], [200, 10]]}}}  # fmt: skip
+    lines = report.task_tables(hopper, {}, 0).splitlines()
+    assert "first eval >= 1000:" in lines[2] and "first eval >= 3000:" in lines[2]
+    assert lines[4].split(" | ")[4:10] == ["200 (1/1)", "20 s", "200 (1/1)", "20 s",
+                                           "not reached (0/1)", "-"]  # fmt: skip
+    assert [report.duration(s) for s in (3.25, 45, 1020, 9000, np.inf)] == \
+        ["3.2 s", "45 s", "17 min", "2.5 h", "-"]  # fmt: skip
+    # Hopper's PPO-KL: every 100,352 steps, then once more at the end of its 300k
+    assert report.eval_every([[[100_352, 0], [200_704, 0], [299_008, 0]]] * 2) == "100,352"
+    assert report.eval_every([[[500, 0], [1000, 0]], [[25_600, 0], [51_200, 0]]]) == "500-25,600"
+
+
+def test_a_level_never_reached_by_half_the_seeds_or_more_is_not_reached():
+    """Two seeds of four got there: the median counts the other two as never, so it is never
+    (not the median of the two that did); a seed still running is named as such."""
+    steps = [1000.0, 2000.0, np.nan, np.nan]
+    assert report.reach_cells(steps, [10.0, 20.0, np.nan, np.nan]) == ("not reached (2/4)", "-")
+    assert report.reach_cells(steps[:3], [10.0, 20.0, np.nan]) == ("2,000 (2/3)", "20 s")
+    assert report.reach_cells([np.nan] * 3, [np.nan] * 3, running=1) == (
+        "not reached (0/3; 1 still running)", "-")  # fmt: skip
+    assert report.reach_cells([1000.0], None) == ("1,000 (1/1)", "n/a")  # time not recorded
+    assert report.reach_cells([1000.0], [np.nan]) == ("1,000 (1/1)", "n/a")  # no SPS logged
+
+
+def write_side_by_side(path):
+    """An against_sb3.py results.json: two seeds of each, SB3's first at 0.9 at 1,000 and 1,500
+    steps."""
+    sb3 = [[[0, 0.0], [500, 0.2], [1000, 1.0], [1500, 1.0]],
+           [[0, 0.0], [500, 0.6], [1000, 0.8], [1500, 0.9]]]  # fmt: skip
+    data = {
+        "seeds": [21, 22],
+        "steps": 1500,
+        "sb3_ddpg_her": [{"steps_to_0.9": s, "train_s_to_0.9": t, "success": c}
+                         for s, t, c in zip((1000, 1500), (6.0, 8.0), sb3, strict=True)],
+        "ipg_her": [{"steps_to_0.9": 500, "train_s_to_0.9": 1.0, "success": [[500, 1.0]]}] * 2,
+    }  # fmt: skip
+    path.write_text(json.dumps(data))
+    return sb3
+
+
+def test_the_anchor_is_drawn_in_and_given_its_row(tmp_path, monkeypatch):
+    """FetchReach's anchor (against_sb3.py's SB3 DDPG+HER) is drawn into the paper's success
+    figure as the median over its seeds, in episodes, with its band from the lowest to the
+    highest seed, and gets a row in the per-task table; the zoo agent's first evaluations are
+    stars at their levels."""
+    import matplotlib.pyplot as plt
+
+    sb3 = write_side_by_side(tmp_path / "side.json")
+    peers = report.load_peers(tmp_path / "side.json")
+    (anchor, ours) = peers["FetchReach-v4"]
+    assert anchor.anchor and not ours.anchor
+    assert anchor.first[0.9] == [1000, 1500] and anchor.seconds == {0.9: [6.0, 8.0]}
+    fig, ax = plt.subplots()
+    report.draw_anchors(ax, peers["FetchReach-v4"], per_episode=True)
+    (line,) = ax.lines  # ours side by side is not an anchor: not drawn
+    assert line.get_label().startswith("SB3 DDPG+HER, anchor: median of 2 seeds")
+    np.testing.assert_allclose(line.get_xdata(), [0, 10, 20, 30])  # 50 steps an episode
+    np.testing.assert_allclose(line.get_ydata(), np.median([[v for _, v in c] for c in sb3], 0))
+    band = ax.collections[0].get_paths()[0].vertices[:, 1]
+    assert band.min() == 0.0 and band.max() == 1.0
+    fig, ax = plt.subplots()
+    report.draw_anchors(ax, peers["FetchPush-v4"])
+    np.testing.assert_array_equal(ax.lines[0].get_xydata(), [[100_000, 0.5], [200_000, 0.9]])
+    plt.close("all")
+
+    drawn = []
+    monkeypatch.setattr(report, "draw_anchors", lambda ax, p, **kw: drawn.append(p))
+    runs = tmp_path / "runs" / "quick"
+    write_run(runs, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
+    args = report.Args(suite="quick", runs_dir=str(tmp_path / "runs"),
+                       results_dir=str(tmp_path / "results"),
+                       side_by_side=str(tmp_path / "side.json"))  # fmt: skip
+    assert report.main(args) == 0
+    assert drawn == [peers["FetchReach-v4"]]  # into the success figure
+    text = (tmp_path / "results" / "results.md").read_text()
+    row = next(line for line in text.splitlines() if line.startswith("| SB3 DDPG+HER"))
+    # finals 1.0 and 0.9; 0.5 first at 1,000 / 500, 0.7 at 1,000 / 1,000, 0.9 at 1,000 / 1,500
+    assert row.split(" | ")[1:] == ["2 (21-22)", "0.95 [0.90, 1.00]", "0.95 [0.90, 1.00]",
+                                    "750 (2/2)", "n/a", "1,000 (2/2)", "n/a", "1,250 (2/2)",
+                                    "7.0 s", "500", "n/a |"]  # fmt: skip
+    assert "anchor: SB3 DDPG+HER)" in text and "*SB3 DDPG+HER (anchor)*" in text
+
+
+def test_the_committed_side_by_side_run_reads_as_it_recorded_itself():
+    """load_peers's steps to 0.9, found on the curves, are the ones against_sb3.py recorded."""
+    recorded = json.loads(report.SIDE_BY_SIDE.read_text())
+    peers = report.load_peers(report.SIDE_BY_SIDE)["FetchReach-v4"]
+    peers = {p.label.split(" ")[0]: p for p in peers}
+    for key, name in (("sb3_ddpg_her", "SB3"), ("ipg_her", "IPG+HER")):
+        assert peers[name].first[0.9] == [r["steps_to_0.9"] for r in recorded[key]]
+        assert peers[name].seconds[0.9] == [r["train_s_to_0.9"] for r in recorded[key]]
