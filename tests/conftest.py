@@ -1,6 +1,8 @@
-"""Shared test helpers: run a script in a subprocess, read back its TensorBoard scalars, and a
-random on-policy batch for the update functions."""
+"""Shared test helpers: run a script in a subprocess, read back its TensorBoard scalars, parse
+and check a command line in-process as a script does, and a random on-policy batch for the update
+functions."""
 
+import inspect
 import os
 import subprocess
 import sys
@@ -54,6 +56,31 @@ def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> No
     assert len(lines) == 1, result.stderr
     for needle in needles:
         assert needle in lines[0], lines[0]
+
+
+def parse(module, *argv: str):
+    """Parse and check ``argv`` as ``module``'s ``__main__`` does (a script with TASK_DEFAULTS:
+    its task defaults, less the ones the run would ignore, ``module.ignored``); the ``Args``."""
+    from common import cli
+
+    argv, task = list(argv), {}
+    if hasattr(module, "TASK_DEFAULTS"):
+        task = dict(task_defaults=module.TASK_DEFAULTS, ignored=module.ignored)
+    args = cli.parse_args(module.Args, argv, **task)
+    takes_argv = len(inspect.signature(module.check_args).parameters) > 1  # ppo_kl's: args only
+    module.check_args(*(args, argv)[: 1 + takes_argv])
+    return args
+
+
+def refused(capsys, module, *argv: str) -> str:
+    """The one ``error:`` line (exit 2, nothing else on stderr) that ``parse`` refuses ``argv``
+    with."""
+    with pytest.raises(SystemExit) as exit_info:
+        parse(module, *argv)
+    assert exit_info.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    return lines[0]
 
 
 @pytest.fixture(scope="session")

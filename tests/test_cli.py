@@ -1,32 +1,23 @@
 """common/cli.py and each script's own argument checks, in-process: bad input exits with one
 ``error:`` line naming the problem, before any run folder exists."""
 
+import dataclasses
 import os
 import subprocess
 import sys
 
 import pytest
-from conftest import ROOT, assert_clean_error, run_dirs, run_script
+from conftest import ROOT, assert_clean_error, parse, refused, run_dirs, run_script
 
 import ipg_her
+import ipg_her_recipe
 import ppo_kl
 import qprop_ppo
 from common import cli
 from common.run import start_run
 
-SCRIPTS = {"ppo_kl": ppo_kl, "qprop_ppo": qprop_ppo, "ipg_her": ipg_her}
-
-
-def refused(capsys, script, *argv: str) -> str:
-    """Parse and check ``argv`` as ``script`` would; return the one error line it exits with."""
-    module = SCRIPTS[script]
-    with pytest.raises(SystemExit) as exit_info:
-        args = cli.parse_args(module.Args, list(argv))
-        module.check_args(args) if module is ppo_kl else module.check_args(args, list(argv))
-    assert exit_info.value.code == 2
-    lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), lines
-    return lines[0]
+SCRIPTS = {"ppo_kl": ppo_kl, "qprop_ppo": qprop_ppo, "ipg_her": ipg_her,
+           "ipg_her_recipe": ipg_her_recipe}  # fmt: skip
 
 
 @pytest.mark.parametrize("script", SCRIPTS)
@@ -43,66 +34,6 @@ def refused(capsys, script, *argv: str) -> str:
         (["--gae-lambda", "-0.1"], "--gae-lambda"),
         (["--kl-target", "0"], "--kl-target"),
         (["--seed", "one"], "--seed"),  # a parse error, reduced to one line
-    ],
-)
-def test_common_checks(capsys, script, argv, needle):
-    assert needle in refused(capsys, script, *argv)
-
-
-@pytest.mark.parametrize(
-    "script, argv, needle",
-    [
-        ("qprop_ppo", ["--eta-mode", "foo"], "foo"),
-        ("qprop_ppo", ["--tau", "-0.1"], "--tau"),
-        ("qprop_ppo", ["--critic-steps", "-1"], "--critic-steps"),
-        ("qprop_ppo", ["--critic-batch-size", "0"], "--critic-batch-size"),
-        ("ipg_her", ["--nu", "1.5"], "--nu"),
-        ("ipg_her", ["--tau", "0"], "--tau"),
-        ("ipg_her", ["--her-goal-selection-strategy", "foo"], "foo"),
-        ("ipg_her", ["--off-policy-batch-size", "0"], "--off-policy-batch-size"),
-        ("ipg_her", ["--env-id", "Hopper-v5", "--her"], "--her would be ignored"),
-        ("ipg_her", ["--env-id", "Hopper-v5", "--her-n-sampled-goal", "2"], "not a goal task"),
-        ("ipg_her", ["--no-her", "--her-n-sampled-goal", "2"], "ignored (--no-her)"),
-        ("ipg_her", ["--no-her", "--her-goal-selection-strategy=final"], "ignored (--no-her)"),
-        ("ipg_her", ["--off-policy-states", "batch", "--off-policy-batch-size", "64"], "ignored"),
-        ("ipg_her", ["--buffer-size", "10"], "less than one FetchReach-v4 episode (50 steps)"),
-        ("qprop_ppo", ["--buffer-size", "3000"], "less than one Hopper-v5 episode (1000 steps)"),
-        ("ipg_her", ["--hidden", "0"], "--hidden must be positive"),
-        ("ipg_her", ["--nu", "0", "--action-l2", "1"], "--action-l2 would be ignored"),
-        ("ipg_her", ["--nu", "0", "--twin-critic"], "--twin-critic would be ignored"),
-        ("ipg_her", ["--nu", "0", "--critic-target", "sample"], "--critic-target would be ignored"),
-        ("qprop_ppo", ["--eta-mode", "none", "--twin-critic"], "--twin-critic would be ignored"),
-        ("ipg_her", ["--nu", "0", "--bounds-loss", "1"], "--bounds-loss would be ignored"),
-        ("ipg_her", ["--action-l2", "-1"], "--action-l2 must be non-negative, got -1.0"),
-        ("ipg_her", ["--bounds-loss", "-1"], "--bounds-loss must be non-negative, got -1.0"),
-        ("ipg_her", ["--target-std", "0"], "--target-std must be positive, got 0.0"),
-        ("ipg_her", ["--target-std", "1", "-1", "1", "1"], "--target-std must be positive"),
-        ("ipg_her", ["--target-std", "1", "0.3"], "one per action dimension (4 on FetchReach-v4)"),
-        ("qprop_ppo", ["--critic-hidden", "0"], "--critic-hidden must be positive"),
-    ],
-)
-def test_algorithm_checks(capsys, script, argv, needle):
-    assert needle in refused(capsys, script, *argv)
-
-
-@pytest.mark.parametrize("script", SCRIPTS)
-def test_defaults_pass_the_checks(script):
-    module = SCRIPTS[script]
-    args = cli.parse_args(module.Args, [])
-    module.check_args(args) if module is ppo_kl else module.check_args(args, [])
-    assert args.env_id in ("Hopper-v5", "FetchReach-v4")
-
-
-def test_checks_do_not_modify_args():
-    args = cli.parse_args(ipg_her.Args, ["--env-id", "Hopper-v5"])
-    before = vars(args).copy()
-    ipg_her.check_args(args, ["--env-id", "Hopper-v5"])
-    assert vars(args) == before
-
-
-@pytest.mark.parametrize(
-    "argv, needle",
-    [
         (["--env-id", "CartPole-v1"], "Discrete actions"),
         (["--env-id", "FrozenLake-v1"], "Discrete actions"),
         (["--env-id", "FrankaKitchen-v1"], "observations are not supported"),
@@ -117,14 +48,135 @@ def test_checks_do_not_modify_args():
         (["--num-envs", "100000", "--total-timesteps", "1000000000"], "GiB are free"),
     ],
 )
+def test_common_checks(capsys, script, argv, needle):
+    """Tasks and values none of the scripts can use (``cli.check_common``)."""
+    assert needle in refused(capsys, SCRIPTS[script], *argv)
+
+
+NOT_A_GOAL_TASK = "would be ignored (Hopper-v5 is not a goal task): leave it out"
+NU_0 = "would be ignored (at --nu 0 without --use-cv no term uses the critic): leave it out"
+UNRECOGNIZED = "unrecognized option {} (--help lists them)"
+
+
+# each error names only its flag and its value (and what it expects)
+@pytest.mark.parametrize(
+    "script, argv, line",
+    [
+        ("ppo_kl", ["--gamma", "1.5"], "--gamma must be in (0, 1], got 1.5"),
+        ("ppo_kl", ["--gae-lambda", "-0.1"], "--gae-lambda must be in [0, 1], got -0.1"),
+        ("ppo_kl", ["--kl-target", "0"], "--kl-target must be positive, got 0.0"),
+        ("ppo_kl", ["--beta-init", "-1"], "--beta-init must be non-negative, got -1.0"),
+        ("qprop_ppo", ["--gamma", "0"], "--gamma must be in (0, 1], got 0.0"),
+        ("qprop_ppo", ["--eta-mode", "foo"], "--eta-mode expects one of (batch-conservative, "
+         "batch-aggressive, conservative, aggressive, ones, none), got 'foo'"),
+        ("qprop_ppo", ["--tau", "-0.1"], "--tau must be in (0, 1], got -0.1"),
+        ("qprop_ppo", ["--critic-steps", "-1"], "--critic-steps must be non-negative, got -1"),
+        ("qprop_ppo", ["--critic-batch-size", "0"], "--critic-batch-size must be positive, got 0"),
+        ("qprop_ppo", ["--critic-hidden", "0"], "--critic-hidden must be positive, got 0"),
+        ("qprop_ppo", ["--buffer-size", "3000"], "--buffer-size 3000 keeps 750 steps per env, "
+         "less than one Hopper-v5 episode (1000 steps); enlarge it"),
+        ("qprop_ppo", ["--twin-critic"], UNRECOGNIZED.format("--twin-critic")),  # the recipe's
+        ("qprop_ppo", ["--kl-early-stop", "2"], UNRECOGNIZED.format("--kl-early-stop, 2")),
+        ("ipg_her", ["--nu", "1.5"], "--nu must be in [0, 1], got 1.5"),
+        ("ipg_her", ["--tau", "0"], "--tau must be in (0, 1], got 0.0"),
+        ("ipg_her", ["--gae-lambda", "1.1"], "--gae-lambda must be in [0, 1], got 1.1"),
+        ("ipg_her", ["--her-goal-selection-strategy", "foo"],
+         "--her-goal-selection-strategy expects one of (future, final, episode), got 'foo'"),
+        ("ipg_her", ["--her-n-sampled-goal", "-1"],
+         "--her-n-sampled-goal must be non-negative, got -1"),
+        ("ipg_her", ["--off-policy-batch-size", "0"],
+         "--off-policy-batch-size must be positive, got 0"),
+        ("ipg_her", ["--env-id", "Hopper-v5", "--her"], f"--her {NOT_A_GOAL_TASK}"),
+        ("ipg_her", ["--env-id", "Hopper-v5", "--her-n-sampled-goal", "2"],
+         f"--her-n-sampled-goal {NOT_A_GOAL_TASK}"),
+        ("ipg_her", ["--no-her", "--her-n-sampled-goal", "2"],
+         "--her-n-sampled-goal would be ignored (--no-her): leave it out"),
+        ("ipg_her", ["--no-her", "--her-goal-selection-strategy=final"],
+         "--her-goal-selection-strategy would be ignored (--no-her): leave it out"),
+        ("ipg_her", ["--off-policy-states", "batch", "--off-policy-batch-size", "64"],
+         "--off-policy-batch-size would be ignored (--off-policy-states batch): leave it out"),
+        ("ipg_her", ["--buffer-size", "10"], "--buffer-size 10 keeps 5 steps per env, less than "
+         "one FetchReach-v4 episode (50 steps); enlarge it"),
+        ("ipg_her", ["--hidden", "0"], "--hidden must be positive, got 0"),
+        ("ipg_her", ["--critic-steps", "-1"], "--critic-steps must be non-negative, got -1"),
+        ("ipg_her", ["--learning-starts", "-1"], "--learning-starts must be non-negative, got -1"),
+        ("ipg_her", ["--target-std", "1"], UNRECOGNIZED.format("--target-std, 1")),  # the recipe's
+        ("ipg_her", ["--kl-early-stop", "2"], UNRECOGNIZED.format("--kl-early-stop, 2")),
+        ("ipg_her_recipe", ["--nu", "1.5"], "--nu must be in [0, 1], got 1.5"),
+        ("ipg_her_recipe", ["--her-n-sampled-goal", "-1"],
+         "--her-n-sampled-goal must be non-negative, got -1"),
+        ("ipg_her_recipe", ["--buffer-size", "10"], "--buffer-size 10 keeps 5 steps per env, "
+         "less than one FetchReach-v4 episode (50 steps); enlarge it"),
+        ("ipg_her_recipe", ["--nu", "0", "--action-l2", "1"], f"--action-l2 {NU_0}"),
+        ("ipg_her_recipe", ["--nu", "0", "--twin-critic"], f"--twin-critic {NU_0}"),
+        ("ipg_her_recipe", ["--nu", "0", "--critic-target", "sample"], f"--critic-target {NU_0}"),
+        ("ipg_her_recipe", ["--nu", "0", "--bounds-loss", "1"], f"--bounds-loss {NU_0}"),
+        ("ipg_her_recipe", ["--action-l2", "-1"], "--action-l2 must be non-negative, got -1.0"),
+        ("ipg_her_recipe", ["--bounds-loss", "-1"], "--bounds-loss must be non-negative, got -1.0"),
+        ("ipg_her_recipe", ["--target-std", "0"], "--target-std must be positive, got 0.0"),
+        ("ipg_her_recipe", ["--target-std", "1", "-1", "1", "1"],
+         "--target-std must be positive, got 1.0 -1.0 1.0 1.0"),
+        ("ipg_her_recipe", ["--target-std", "1", "0.3"],
+         "--target-std takes one sigma or one per action dimension (4 on FetchReach-v4), not 2"),
+        ("ipg_her_recipe", ["--target-std"],
+         "--target-std takes one sigma or one per action dimension (4 on FetchReach-v4), not 0"),
+        ("ipg_her_recipe", ["--grasped-start", "1.5"],
+         "--grasped-start must be in [0, 1], got 1.5"),
+    ],
+)  # fmt: skip
+def test_algorithm_checks(capsys, script, argv, line):
+    assert refused(capsys, SCRIPTS[script], *argv) == f"error: {line}"
+
+
+RECIPE_ONLY = sorted({f.name for f in dataclasses.fields(ipg_her_recipe.Args)}
+                     - {f.name for f in dataclasses.fields(ipg_her.Args)})  # fmt: skip
+
+
+def test_the_recipes_flags_are_not_the_papers(capsys):
+    """ipg_her.py is the paper's IPG+HER: each flag of the recipe is an unrecognized option
+    there (and the recipe is ipg_her.py's flags plus its own)."""
+    assert RECIPE_ONLY == ["action_l2", "bounds_loss", "clip_q_target", "critic_target",
+                           "grasped_start", "target_std", "twin_critic"]  # fmt: skip
+    papers = [(f.name, f.default) for f in dataclasses.fields(ipg_her.Args)]
+    assert set(papers) <= {(f.name, f.default) for f in dataclasses.fields(ipg_her_recipe.Args)}
+    assert not hasattr(ipg_her, "TASK_DEFAULTS") and not hasattr(ipg_her, "sigma_rule")
+    for name in RECIPE_ONLY:
+        line = refused(capsys, ipg_her, cli.flag(name))
+        assert line.startswith(f"error: unrecognized option {cli.flag(name)}"), line
+
+
+@pytest.mark.parametrize("env_id", ["FetchPush-v4", "FetchPickAndPlace-v4", "FetchSlide-v4"])
+def test_ipg_her_on_a_hard_fetch_task_names_the_recipe_in_one_line(capsys, env_id):
+    """The paper's algorithm runs the hard tasks as it is (its own defaults, no task's), and one
+    line says where the recipe they need is; FetchReach, which it learns, gets no such line."""
+    args = parse(ipg_her, "--env-id", env_id)
+    line = f"{env_id}: the paper's IPG+HER; the recipe it needs: ipg_her_recipe.py\n"
+    assert capsys.readouterr().out == line
+    assert vars(args) == vars(ipg_her.Args(env_id=env_id))  # no task defaults taken
+    parse(ipg_her, "--env-id", "FetchReach-v4")
+    assert capsys.readouterr().out == ""
+    parse(ipg_her_recipe, "--env-id", env_id)  # the recipe: its task's defaults, no pointer
+    assert "ipg_her_recipe.py" not in capsys.readouterr().out
+
+
 @pytest.mark.parametrize("script", SCRIPTS)
-def test_tasks_and_values_the_scripts_cannot_use(capsys, script, argv, needle):
-    assert needle in refused(capsys, script, *argv)
+def test_defaults_pass_the_checks(script):
+    assert parse(SCRIPTS[script]).env_id in ("Hopper-v5", "FetchReach-v4")
 
 
-@pytest.mark.parametrize("script", ["qprop_ppo", "ipg_her"])
+@pytest.mark.parametrize("module", [ipg_her, ipg_her_recipe], ids=["ipg_her", "ipg_her_recipe"])
+@pytest.mark.parametrize("env_id", ["Hopper-v5", "FetchPush-v4"])
+def test_checks_do_not_modify_args(module, env_id):
+    args = cli.parse_args(module.Args, ["--env-id", env_id])
+    before = vars(args).copy()
+    module.check_args(args, ["--env-id", env_id])
+    assert vars(args) == before
+
+
+@pytest.mark.parametrize("script", ["qprop_ppo", "ipg_her", "ipg_her_recipe"])
 def test_critic_learning_rate_must_be_positive(capsys, script):
-    assert "--critic-learning-rate" in refused(capsys, script, "--critic-learning-rate", "-1")
+    line = refused(capsys, SCRIPTS[script], "--critic-learning-rate", "-1")
+    assert line == "error: --critic-learning-rate must be positive, got -1.0"
 
 
 def test_an_uncreatable_log_dir_is_refused_and_run_folders_are_unique(capsys, tmp_path):
@@ -167,18 +219,19 @@ def test_a_renderer_that_cannot_load_is_refused_before_training(tmp_path):
 
 
 def test_a_tasks_own_defaults_apply_where_no_flag_was_given(capsys):
-    """ipg_her.py's TASK_DEFAULTS: FetchPush takes them, a flag given wins, FetchReach keeps the
-    Args defaults; one line names what was taken."""
+    """ipg_her_recipe.py's TASK_DEFAULTS: FetchPush takes them, a flag given wins, FetchReach
+    keeps the Args defaults; one line names what was taken."""
 
     def parse(*argv):
-        return cli.parse_args(ipg_her.Args, list(argv), task_defaults=ipg_her.TASK_DEFAULTS)
+        return cli.parse_args(ipg_her_recipe.Args, list(argv),
+                              task_defaults=ipg_her_recipe.TASK_DEFAULTS)  # fmt: skip
 
     push = parse("--env-id", "FetchPush-v4", "--hidden=64")
     taken = (push.hidden, push.target_std, push.normalization, push.action_l2)
     assert taken == (64, 1.0, "paper", 1.0)
     line = "own defaults: --target-std 1.0, --normalization paper, --action-l2 1.0, --twin-critic\n"
     assert capsys.readouterr().out.endswith(line)  # spelled as one would type them
-    assert vars(parse("--env-id", "FetchReach-v4")) == vars(ipg_her.Args())
+    assert vars(parse("--env-id", "FetchReach-v4")) == vars(ipg_her_recipe.Args())
     assert capsys.readouterr().out == ""
     assert parse("--env-id", "FetchPush-v4").twin_critic  # a boolean default of the task's
     assert not parse("--env-id", "FetchPush-v4", "--no-twin-critic").twin_critic  # the flag wins

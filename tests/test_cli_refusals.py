@@ -1,42 +1,22 @@
 """Bad input the scripts once accepted, or refused with a line that named the wrong thing: flags
 in any spelling, flags a run would ignore (IPG at nu = 0 and 1, Q-Prop without a critic), nan
-and inf, tyro's parse errors, and one error per flag. In-process, plus a few runs as a user
-runs them (one line, no run folder)."""
+and inf, tyro's parse errors (one error per flag: test_cli.py's test_algorithm_checks).
+In-process, plus a few runs as a user runs them (one line, no run folder)."""
 
 import typing
 
 import pytest
-from conftest import assert_clean_error, run_dirs, run_script, scalars
+from conftest import assert_clean_error, parse, refused, run_dirs, run_script, scalars
 
 import ipg_her
+import ipg_her_recipe
 import ppo_kl
 import qprop_ppo
 from common import cli
 
-SCRIPTS = {"ppo_kl": ppo_kl, "qprop_ppo": qprop_ppo, "ipg_her": ipg_her}
-
-
-def parse(script, *argv: str):
-    """Parse and check ``argv`` as ``script``'s ``__main__`` does (ipg_her.py: its task
-    defaults, less the ones the run would ignore)."""
-    module, argv = SCRIPTS[script], list(argv)
-    if module is ipg_her:
-        args = cli.parse_args(ipg_her.Args, argv, task_defaults=ipg_her.TASK_DEFAULTS,
-                              ignored=cli.ipg_ignored)  # fmt: skip
-    else:
-        args = cli.parse_args(module.Args, argv)
-    module.check_args(args) if module is ppo_kl else module.check_args(args, argv)
-    return args
-
-
-def refused(capsys, script, *argv: str) -> str:
-    """The one ``error:`` line (exit 2) that ``argv`` is refused with."""
-    with pytest.raises(SystemExit) as exit_info:
-        parse(script, *argv)
-    assert exit_info.value.code == 2
-    lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), lines
-    return lines[0]
+SCRIPTS = {"ppo_kl": ppo_kl, "qprop_ppo": qprop_ppo, "ipg_her": ipg_her,
+           "ipg_her_recipe": ipg_her_recipe}  # fmt: skip
+IPG = {"ipg_her": ipg_her, "ipg_her_recipe": ipg_her_recipe}  # the recipe keeps IPG's checks
 
 
 PUSH = ("--env-id", "FetchPush-v4")
@@ -55,7 +35,7 @@ PUSH = ("--env-id", "FetchPush-v4")
 )
 def test_a_flag_given_in_any_spelling_beats_the_tasks_default(capsys, argv, field, value):
     for typed in argv:
-        args = parse("ipg_her", *PUSH, *typed.split())
+        args = parse(ipg_her_recipe, *PUSH, *typed.split())
         assert getattr(args, field) == value
         line = capsys.readouterr().out.strip().splitlines()[0]
         assert line.startswith("FetchPush-v4's own defaults: --hidden 256, ")
@@ -66,7 +46,7 @@ def test_a_flag_given_in_any_spelling_beats_the_tasks_default(capsys, argv, fiel
     "typed", ["--twin_critic", "--no-twin-critic", "--no_twin_critic", "--no-twin_critic"]
 )
 def test_an_ignored_boolean_is_refused_whatever_its_spelling(capsys, typed):
-    line = refused(capsys, "ipg_her", "--nu", "0", typed)
+    line = refused(capsys, ipg_her_recipe, "--nu", "0", typed)
     assert line.startswith(f"error: {typed} would be ignored (at --nu 0 without --use-cv")
 
 
@@ -74,7 +54,19 @@ def test_an_ignored_boolean_is_refused_whatever_its_spelling(capsys, typed):
     "argv", [["--critic_target=sample"], ["--action_l2", "1"], ["--bounds_loss=1"]]
 )
 def test_an_ignored_value_flag_is_refused_whatever_its_spelling(capsys, argv):
-    assert "would be ignored" in refused(capsys, "ipg_her", "--nu", "0", *argv)
+    assert "would be ignored" in refused(capsys, ipg_her_recipe, "--nu", "0", *argv)
+
+
+def test_ignored_gathers_the_rules_that_hold_and_a_later_rule_wins():
+    """``cli.ignored``: ``{flag: why}`` of every flag of every rule whose condition holds; a rule
+    that does not hold adds nothing, and a flag in two rules takes the later one's why."""
+    assert cli.ignored() == {}
+    assert cli.ignored((False, "--a --b", "never")) == {}
+    assert cli.ignored((True, "--a --b", "first"), (False, "--c", "never")) == {
+        "--a": "first", "--b": "first"}  # fmt: skip
+    assert cli.ignored((True, "--a --b", "first"), (True, "--b --c", "later")) == {
+        "--a": "first", "--b": "later", "--c": "later"}  # fmt: skip
+    assert cli.ignored((True, "--b", "first"), (False, "--b", "never")) == {"--b": "first"}
 
 
 def test_refuse_ignored_reads_every_spelling(capsys):
@@ -96,69 +88,89 @@ NU0_IGNORED = [
     ["--critic-steps", "10"],
     ["--critic-learning-rate", "1e-4"],
     ["--critic-batch-size", "64"],
+    ["--buffer-size", "100000"],
+    ["--learning-starts", "0"],
+    ["--diagnostics-every", "1"],
+    ["--her-n-sampled-goal", "2"],
+    ["--her-goal-selection-strategy", "final"],
+    ["--her"],
+    ["--no-her"],
+]
+RECIPE_NU0_IGNORED = [  # the recipe's critic flags, and its penalties on the off-policy term
     ["--critic-target", "sample"],
     ["--clip-q-target"],
     ["--no-clip-q-target"],
-    ["--buffer-size", "100000"],
-    ["--learning-starts", "0"],
     ["--twin-critic"],
     ["--action-l2", "1"],
     ["--bounds-loss", "1"],
-    ["--diagnostics-every", "1"],
-    ["--her-n-sampled-goal", "2"],
-    ["--no-her"],
 ]
 
 
-@pytest.mark.parametrize("argv", NU0_IGNORED)
-def test_at_nu_0_without_control_variate_the_critics_flags_are_refused(capsys, argv):
-    line = refused(capsys, "ipg_her", "--nu", "0", *argv)
+@pytest.mark.parametrize(
+    "script, argv",
+    [(script, argv) for script in IPG for argv in NU0_IGNORED]
+    + [("ipg_her_recipe", argv) for argv in RECIPE_NU0_IGNORED],
+)
+def test_at_nu_0_without_control_variate_the_critics_flags_are_refused(capsys, script, argv):
+    line = refused(capsys, IPG[script], "--nu", "0", *argv)
     assert line == f"error: {argv[0]} would be ignored (at --nu 0 without --use-cv no term uses " \
                    "the critic): leave it out"  # fmt: skip
-    parse("ipg_her", "--nu", "0", "--use-cv", *argv)  # with the control variate they count
-    parse("ipg_her", "--nu", "0.5", *argv)  # and in the middle
+    parse(IPG[script], "--nu", "0", "--use-cv", *argv)  # with the control variate they count
+    parse(IPG[script], "--nu", "0.5", *argv)  # and in the middle
 
 
+@pytest.mark.parametrize("script", IPG)
 @pytest.mark.parametrize(
-    "argv, needle",
+    "argv, line",
     [
         (["--her-n-sampled-goal", "0", "--her-goal-selection-strategy", "final"],
-         "error: --her-goal-selection-strategy would be ignored (--her-n-sampled-goal 0"),
-        (["--nu", "1", "--use-cv"], "error: --use-cv would be ignored (at --nu 1"),
-        (["--use-cv"], "error: --use-cv would be ignored (at --nu 1"),
-        (["--no-norm-adv", "--normalization", "paper"], "error: --normalization would be ignored"),
-        (["--env-id", "Hopper-v5", "--no-clip-q-target"],
-         "error: --no-clip-q-target would be ignored (Hopper-v5 is not a goal task)"),
+         "--her-goal-selection-strategy would be ignored (--her-n-sampled-goal 0 relabels no "
+         "goal)"),
+        (["--nu", "1", "--use-cv"], "--use-cv would be ignored (at --nu 1 its on-policy term has "
+         "weight 0)"),
+        (["--use-cv"], "--use-cv would be ignored (at --nu 1 its on-policy term has weight 0)"),
+        (["--no-norm-adv", "--normalization", "paper"],
+         "--normalization would be ignored (--no-norm-adv: nothing to normalise)"),
+        (["--off-policy-states", "batch", "--off-policy-batch-size", "64"],
+         "--off-policy-batch-size would be ignored (--off-policy-states batch)"),
+        (["--env-id", "Hopper-v5", "--her-goal-selection-strategy", "final"],
+         "--her-goal-selection-strategy would be ignored (Hopper-v5 is not a goal task)"),
     ],
 )  # fmt: skip
-def test_other_ignored_ipg_combinations_are_refused(capsys, argv, needle):
-    assert refused(capsys, "ipg_her", *argv).startswith(needle)
+def test_other_ignored_ipg_combinations_are_refused(capsys, script, argv, line):
+    assert refused(capsys, IPG[script], *argv) == f"error: {line}: leave it out"
+
+
+def test_the_recipe_refuses_clipping_targets_where_no_goal_reward_is_clipped(capsys):
+    line = refused(capsys, ipg_her_recipe, "--env-id", "Hopper-v5", "--no-clip-q-target")
+    assert line == "error: --no-clip-q-target would be ignored (Hopper-v5 is not a goal task): " \
+                   "leave it out"  # fmt: skip
 
 
 @pytest.mark.parametrize(
     "argv", [["--tau", "0.1"], ["--critic-steps", "1"], ["--buffer-size", "5000"],
              ["--learning-starts", "0"], ["--critic-hidden", "64"], ["--normalization", "paper"],
-             ["--critic_learning_rate=1e-4"], ["--twin-critic"]],
+             ["--critic_learning_rate=1e-4"]],
 )  # fmt: skip
 def test_qprop_without_a_critic_refuses_the_critics_flags(capsys, argv):
-    line = refused(capsys, "qprop_ppo", "--eta-mode", "none", *argv)
+    line = refused(capsys, qprop_ppo, "--eta-mode", "none", *argv)
     assert line.startswith(f"error: {argv[0].split('=')[0]} would be ignored (--eta-mode none")
-    parse("qprop_ppo", *argv)
+    parse(qprop_ppo, *argv)
 
 
 def test_qprop_without_advantage_normalisation_refuses_a_normalization_mode(capsys):
-    line = refused(capsys, "qprop_ppo", "--no-norm-adv", "--normalization", "paper")
+    line = refused(capsys, qprop_ppo, "--no-norm-adv", "--normalization", "paper")
     assert line.startswith("error: --normalization would be ignored (--no-norm-adv")
 
 
 def test_task_defaults_the_run_would_ignore_are_neither_applied_nor_printed(capsys):
-    args = parse("ipg_her", *PUSH, "--nu", "0")
+    args = parse(ipg_her_recipe, *PUSH, "--nu", "0")
     assert (
         capsys.readouterr().out == "FetchPush-v4's own defaults: --hidden 256, --target-std 1.0\n"
     )
     assert (args.twin_critic, args.action_l2, args.normalization) == (False, 0.0, "unbiased")
     assert (args.hidden, args.target_std) == (256, 1.0)  # the policy's: applied
-    args = parse("ipg_her", *PUSH, "--nu", "0", "--use-cv")  # the critic counts again
+    args = parse(ipg_her_recipe, *PUSH, "--nu", "0", "--use-cv")  # the critic counts again
     assert "--action-l2 1.0, --twin-critic" in capsys.readouterr().out
     assert args.twin_critic and args.action_l2 == 1.0
 
@@ -193,16 +205,19 @@ def float_fields(args_class) -> list[str]:
 @pytest.mark.parametrize("script", SCRIPTS)
 def test_every_float_flag_refuses_nan_and_inf(capsys, script, value):
     names = float_fields(SCRIPTS[script].Args)
-    assert {"learning_rate", "beta_init", "kl_target", "kl_early_stop"} <= set(names)
+    assert {"learning_rate", "beta_init", "kl_target"} <= set(names)
+    assert ("kl_early_stop" in names) == (script == "ppo_kl")  # PPO-KL's alone
+    assert ("target_std" in names) == (script == "ipg_her_recipe")  # a tuple or None
     for name in names:
-        line = refused(capsys, script, cli.flag(name), value)
+        line = refused(capsys, SCRIPTS[script], cli.flag(name), value)
         assert line == f"error: {cli.flag(name)} must be a finite number, got {float(value)}"
 
 
 def test_a_tuple_of_floats_refuses_nan_and_none_stays_allowed(capsys):
-    line = refused(capsys, "ipg_her", "--target-std", "1", "nan", "1", "1")
+    line = refused(capsys, ipg_her_recipe, "--target-std", "1", "nan", "1", "1")
     assert line == "error: --target-std must be a finite number, got 1.0 nan 1.0 1.0"
-    assert parse("ppo_kl", "--kl-early-stop", "None").kl_early_stop is None
+    assert parse(ppo_kl, "--kl-early-stop", "None").kl_early_stop is None
+    assert parse(ipg_her_recipe, "--target-std", "None").target_std is None
 
 
 @pytest.mark.parametrize(
@@ -227,7 +242,7 @@ def test_refusals_end_to_end_leave_no_run_folder(tmp_path, script, argv, needle)
         ("ppo_kl", ["--seed=x"], "--seed expects an integer, got 'x'"),
         ("qprop_ppo", ["--gamma", "high"], "--gamma expects a number, got 'high'"),
         ("ppo_kl", ["--kl-early-stop", "x"], "--kl-early-stop expects a number or None, got 'x'"),
-        ("ipg_her", ["--target-std", "1", "x"],
+        ("ipg_her_recipe", ["--target-std", "1", "x"],
          "--target-std expects None, a number or several, got '1 x'"),
         ("ipg_her", ["--q-bar", "foo"], "--q-bar expects one of (mean, sample), got 'foo'"),
         ("ipg_her", ["--her_goal_selection_strategy=best"],
@@ -238,54 +253,25 @@ def test_refusals_end_to_end_leave_no_run_folder(tmp_path, script, argv, needle)
     ],
 )  # fmt: skip
 def test_a_parse_error_is_one_line_saying_what_the_flag_expects(capsys, script, argv, line):
-    assert refused(capsys, script, *argv) == f"error: {line}"
+    assert refused(capsys, SCRIPTS[script], *argv) == f"error: {line}"
 
 
-# row 18: one flag and its value per error; an old task version's current one
-@pytest.mark.parametrize(
-    "script, argv, line",
-    [
-        ("ipg_her", ["--nu", "1.5"], "--nu must be in [0, 1], got 1.5"),
-        (
-            "ipg_her",
-            ["--her-n-sampled-goal", "-1"],
-            "--her-n-sampled-goal must be non-negative, got -1",
-        ),  # noqa: E501
-        ("ppo_kl", ["--gamma", "1.5"], "--gamma must be in (0, 1], got 1.5"),
-        ("qprop_ppo", ["--gamma", "0"], "--gamma must be in (0, 1], got 0.0"),
-        ("ppo_kl", ["--gae-lambda", "-0.1"], "--gae-lambda must be in [0, 1], got -0.1"),
-        ("ipg_her", ["--gae-lambda", "1.1"], "--gae-lambda must be in [0, 1], got 1.1"),
-        ("ppo_kl", ["--kl-target", "0"], "--kl-target must be positive, got 0.0"),
-        ("ppo_kl", ["--beta-init", "-1"], "--beta-init must be non-negative, got -1.0"),
-        ("qprop_ppo", ["--critic-steps", "-1"], "--critic-steps must be non-negative, got -1"),
-        ("ipg_her", ["--learning-starts", "-1"], "--learning-starts must be non-negative, got -1"),
-        ("ipg_her", ["--action-l2", "-1"], "--action-l2 must be non-negative, got -1.0"),
-        ("ipg_her", ["--target-std", "0"], "--target-std must be positive, got 0.0"),
-        (
-            "ipg_her",
-            ["--target-std"],
-            "--target-std takes one sigma or one per action dimension (4 on FetchReach-v4), not 0",
-        ),  # a bare flag: an empty tuple
-        ("ipg_her", ["--grasped-start", "1.5"], "--grasped-start must be in [0, 1], got 1.5"),
-    ],
-)
-def test_a_range_error_names_only_its_flag_and_value(capsys, script, argv, line):
-    assert refused(capsys, script, *argv) == f"error: {line}"
-
-
+# row 18: one flag and its value per error (test_cli.py's test_algorithm_checks); an old task
+# version's current one
 @pytest.mark.parametrize("old, current", [("FetchReach-v1", "FetchReach-v4"),
                                           ("FetchPush-v1", "FetchPush-v4")])  # fmt: skip
 def test_an_old_task_version_suggests_the_current_one(capsys, old, current):
     """A mujoco-py task: its name's highest version that constructs, not an unrelated one."""
-    line = refused(capsys, "ppo_kl", "--env-id", old)
+    line = refused(capsys, ppo_kl, "--env-id", old)
     assert line.endswith(f"not support; use {current}") and "Hopper" not in line, line
-    assert refused(capsys, "ppo_kl", "--env-id", "Hopper-v2").endswith("use Hopper-v5")
-    assert refused(capsys, "ppo_kl", "--env-id", "FetchReach-v9").endswith("FetchReach-v4?")
+    assert refused(capsys, ppo_kl, "--env-id", "Hopper-v2").endswith("use Hopper-v5")
+    assert refused(capsys, ppo_kl, "--env-id", "FetchReach-v9").endswith("FetchReach-v4?")
 
 
 # row 19: a task without goals trains without HER, and says so
-def test_ipg_on_a_task_without_goals_says_hindsight_is_off(capsys):
-    parse("ipg_her", "--env-id", "Hopper-v5")
+@pytest.mark.parametrize("script", IPG)
+def test_ipg_on_a_task_without_goals_says_hindsight_is_off(capsys, script):
+    parse(IPG[script], "--env-id", "Hopper-v5")
     assert capsys.readouterr().out == "Hopper-v5 has no goals: hindsight relabelling (HER) is off\n"
-    parse("ipg_her", "--env-id", "FetchReach-v4")
+    parse(IPG[script], "--env-id", "FetchReach-v4")
     assert capsys.readouterr().out == ""

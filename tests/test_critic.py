@@ -1,7 +1,7 @@
-"""critic_step of qprop_ppo.py and ipg_her.py (eq. 6-7): the TD target
+"""critic_step of qprop_ppo.py, ipg_her.py and ipg_her_recipe.py (eq. 6-7): the TD target
 r + gamma (1 - terminated) Q_w'(s', mu(s')), the gradient step on 0.5 E[(Q_w - target)^2], the
-soft target update w' <- tau w + (1 - tau) w', and IPG's clipping of the targets and its target
-at a sampled a' ~ pi(s')."""
+soft target update w' <- tau w + (1 - tau) w', IPG's clipping of the targets; the recipe's target
+at a sampled a' ~ pi(s') and its twin critics (TD3)."""
 
 import copy
 
@@ -9,10 +9,13 @@ import pytest
 import torch
 
 import ipg_her
+import ipg_her_recipe
 import qprop_ppo
 
 OBS, ACT, HIDDEN = 3, 2, 16
 GAMMA, TAU, LR = 0.9, 0.3, 0.1
+MODULES = {"qprop_ppo": qprop_ppo, "ipg_her": ipg_her, "ipg_her_recipe": ipg_her_recipe}
+IPG = {"ipg_her": ipg_her, "ipg_her_recipe": ipg_her_recipe}  # critic_step's target_range
 
 
 def networks(module):
@@ -59,7 +62,7 @@ def flat(net):
 
 def call(module, qf, qf_target, optimizer, agent, d, gamma=GAMMA, tau=TAU, target_range=None,
          sample_next=None):  # fmt: skip
-    given = {"target_range": target_range, "sample": sample_next}  # ipg_her.py's only
+    given = {"target_range": target_range, "sample": sample_next}  # IPG's; sample: the recipe's
     extra = {key: value for key, value in given.items() if value is not None}
     return module.critic_step(qf, qf_target, optimizer, agent, d, gamma, tau, **extra)
 
@@ -92,8 +95,9 @@ def check_step(module, target_of, target_range=None, sample_next=None):
     return agent, qf_target, d, y
 
 
-@pytest.mark.parametrize("module", [qprop_ppo, ipg_her], ids=["qprop_ppo", "ipg_her"])
-def test_td_target_does_not_bootstrap_past_a_termination(module):
+@pytest.mark.parametrize("script", MODULES)
+def test_td_target_does_not_bootstrap_past_a_termination(script):
+    module = MODULES[script]
     agent, qf_target, d, y = check_step(module, hand_target)
     # not vacuous: bootstrapping at the terminated rows would give targets far from these
     with torch.no_grad():
@@ -102,9 +106,10 @@ def test_td_target_does_not_bootstrap_past_a_termination(module):
     assert torch.all((GAMMA * q_next[done]).abs() > 1.0)
 
 
-@pytest.mark.parametrize("module", [qprop_ppo, ipg_her], ids=["qprop_ppo", "ipg_her"])
-def test_soft_target_update_moves_the_target_a_fraction_tau_toward_the_new_critic(module):
+@pytest.mark.parametrize("script", MODULES)
+def test_soft_target_update_moves_the_target_a_fraction_tau_toward_the_new_critic(script):
     """w' <- tau w + (1 - tau) w' (eq. 6), w the critic's weights after its gradient step."""
+    module = MODULES[script]
     agent, qf, qf_target = networks(module)
     d = replay_batch()
     target_before, critic_before = flat(qf_target), flat(qf)
@@ -118,20 +123,21 @@ def test_soft_target_update_moves_the_target_a_fraction_tau_toward_the_new_criti
         assert torch.equal(b, b_target)
 
 
+@pytest.mark.parametrize("script", IPG)
 @pytest.mark.parametrize(
     "target_range",
     [(-0.5, 4.0), (1.0, 5.0)],
     ids=["clips-above-and-below", "lifts-every-terminated-row"],
 )
-def test_ipg_targets_are_clipped_to_target_range(target_range):
+def test_ipg_targets_are_clipped_to_target_range(script, target_range):
     """The clipped target clamp(r + gamma (1 - d) Q_w'(s', mu(s')), lo, hi), both bounds active
     on this batch, drives the step; the unclipped one would not."""
 
     def clipped(agent, qf_target, d):
         return hand_target(agent, qf_target, d).clamp(*target_range)
 
-    _, _, _, y = check_step(ipg_her, clipped, target_range)
-    agent, _, qf_target = networks(ipg_her)
+    _, _, _, y = check_step(IPG[script], clipped, target_range)
+    agent, _, qf_target = networks(IPG[script])
     raw = hand_target(agent, qf_target, replay_batch())
     lo, hi = target_range
     inside = (raw > lo) & (raw < hi)
@@ -139,9 +145,10 @@ def test_ipg_targets_are_clipped_to_target_range(target_range):
     assert not torch.allclose(y, raw)
 
 
-def test_ipg_critic_target_at_a_sampled_next_action():
-    """--critic-target sample: y = r + gamma (1 - d) Q_w'(s', a') at the a' ~ pi(s') the step
-    draws from torch's generator (drawn here from the same state); not the target at mu(s')."""
+def test_the_recipes_critic_target_at_a_sampled_next_action():
+    """ipg_her_recipe.py's --critic-target sample: y = r + gamma (1 - d) Q_w'(s', a') at the
+    a' ~ pi(s') the step draws from torch's generator (drawn here from the same state); not the
+    target at mu(s')."""
 
     def sampled(agent, qf_target, d):
         state = torch.get_rng_state()
@@ -152,21 +159,21 @@ def test_ipg_critic_target_at_a_sampled_next_action():
         return hand_target(agent, qf_target, d, a_next=a_next)
 
     torch.manual_seed(3)
-    _, _, _, y = check_step(ipg_her, sampled, sample_next=True)
-    agent, _, qf_target = networks(ipg_her)
+    _, _, _, y = check_step(ipg_her_recipe, sampled, sample_next=True)
+    agent, _, qf_target = networks(ipg_her_recipe)
     at_mean = hand_target(agent, qf_target, replay_batch())
     live = replay_batch()["terminations"] == 0
     assert (y - at_mean)[live].abs().min() > 1e-3, "a sampled a' should move every target"
-    _, _, _, y_mu = check_step(ipg_her, hand_target, sample_next=False)  # the default: a' = mu(s')
+    _, _, _, y_mu = check_step(ipg_her_recipe, hand_target, sample_next=False)  # a' = mu(s')
     torch.testing.assert_close(y_mu, at_mean)
 
 
-@pytest.mark.parametrize("module", [qprop_ppo, ipg_her], ids=["qprop_ppo", "ipg_her"])
-def test_twin_critic_targets_the_smaller_target_q_and_steps_each_network_on_its_own_loss(module):
-    """TD3's clipped double Q (``--twin-critic``): y = r + gamma (1 - d) min(Q_1'(s', mu(s')),
-    Q_2'(s', mu(s'))) row by row, by hand, and the step is SGD on 0.5 E[(Q_1 - y)^2] + 0.5
-    E[(Q_2 - y)^2]; the second target network sits above the first on some rows and below on
-    others, so neither head alone gives the target."""
+def test_twin_critic_targets_the_smaller_target_q_and_steps_each_network_on_its_own_loss():
+    """The recipe's TD3 clipped double Q (``--twin-critic``): y = r + gamma (1 - d)
+    min(Q_1'(s', mu(s')), Q_2'(s', mu(s'))) row by row, by hand, and the step is SGD on
+    0.5 E[(Q_1 - y)^2] + 0.5 E[(Q_2 - y)^2]; the second target network sits above the first on
+    some rows and below on others, so neither head alone gives the target."""
+    module = ipg_her_recipe
     torch.manual_seed(0)
     agent = module.Agent(OBS, ACT, 16)
     qf = module.QNetwork(OBS, ACT, HIDDEN, twin=True)
@@ -194,17 +201,25 @@ def test_twin_critic_targets_the_smaller_target_q_and_steps_each_network_on_its_
     torch.testing.assert_close(flat(qf), expected)
 
 
-@pytest.mark.parametrize("module", [qprop_ppo, ipg_her], ids=["qprop_ppo", "ipg_her"])
-def test_one_critic_is_the_twin_critics_first_network_and_keeps_its_parameter_names(module):
-    """Without --twin-critic the critic is the network it always was: the same parameters and
-    names (checkpoints of earlier runs load), and ``both=True`` gives that one Q."""
+NET_NAMES = {"net.0.weight", "net.0.bias", "net.2.weight", "net.2.bias", "net.4.weight",
+             "net.4.bias", "low", "high"}  # fmt: skip
+
+
+@pytest.mark.parametrize("script", MODULES)
+def test_one_critic_is_the_twin_critics_first_network_and_keeps_its_parameter_names(script):
+    """One critic is the network it always was, in every script: the same parameters and names
+    (checkpoints of earlier runs load); the recipe's twin critic starts with that network, and
+    without --twin-critic it is that network alone, ``both=True`` giving its one Q."""
+    module = MODULES[script]
     torch.manual_seed(0)
     one = module.QNetwork(OBS, ACT, HIDDEN)
+    assert set(one.state_dict()) == NET_NAMES
     torch.manual_seed(0)
-    two = module.QNetwork(OBS, ACT, HIDDEN, twin=True)
-    assert set(one.state_dict()) == {"net.0.weight", "net.0.bias", "net.2.weight", "net.2.bias",
-                                     "net.4.weight", "net.4.bias", "low", "high"}  # fmt: skip
-    assert torch.equal(flat(one), flat(two.net))
+    recipes = ipg_her_recipe.QNetwork(OBS, ACT, HIDDEN)
+    torch.manual_seed(0)
+    two = ipg_her_recipe.QNetwork(OBS, ACT, HIDDEN, twin=True)
+    assert set(recipes.state_dict()) == NET_NAMES and len(two.twin) == 1
+    assert torch.equal(flat(one), flat(recipes)) and torch.equal(flat(one), flat(two.net))
     x, a = torch.randn(5, OBS), torch.randn(5, ACT)
-    (q,) = one(x, a, both=True)
+    (q,) = recipes(x, a, both=True)
     assert torch.equal(q, one(x, a)) and torch.equal(one(x, a), two(x, a))

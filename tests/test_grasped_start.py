@@ -50,5 +50,5 @@ def test_tasks_without_a_free_gripper_are_refused():
     [(("--env-id", "FetchPush-v4", "--grasped-start", "0.5"), "gripper can hold"),
      (("--env-id", TASK, "--grasped-start", "1.5"), "in [0, 1]")],
 )  # fmt: skip
-def test_the_script_refuses_grasped_starts_it_cannot_make(tmp_path, flags, needle):
-    assert_clean_error(run_script("ipg_her.py", tmp_path, *flags), needle)
+def test_the_recipe_refuses_grasped_starts_it_cannot_make(tmp_path, flags, needle):
+    assert_clean_error(run_script("ipg_her_recipe.py", tmp_path, *flags), needle)

@@ -1,12 +1,17 @@
 """common/her.py against its definition, on hand-written episodes whose every field says where
 it came from: observation and achieved goal of env e, episode n, step t are [e, n, t]; the
-desired goal is [e, n, -1].
+desired goal is [e, n, -1]. Then HER's flags (which a run would ignore, which it refuses) and
+common/replay.py's refusal of a buffer too small for one episode.
 """
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
+from common import cli, her, replay
 from common.her import HerReplayBuffer
+
+cli.register_goal_tasks()
 
 
 def compute_reward(achieved_goal, desired_goal):
@@ -182,22 +187,77 @@ def test_state_dict_holds_the_stored_rows_only_even_when_the_sampler_cache_has_t
         np.testing.assert_array_equal(copy.sample(32)["obs"], expected)
 
 
+def ending_maze() -> str:
+    """A goal task whose episodes end where the goal is reached: PointMaze with
+    continuing_task=False, registered once."""
+    if "PointMazeEnding-v3" not in gym.registry:
+        spec = gym.spec("PointMaze_UMaze-v3")
+        kwargs = {**spec.kwargs, "continuing_task": False}
+        gym.register("PointMazeEnding-v3", spec.entry_point, max_episode_steps=300, kwargs=kwargs)
+    return "PointMazeEnding-v3"
+
+
 def test_hindsight_refuses_a_task_whose_termination_depends_on_the_goal():
     """HER keeps a relabelled transition's stored ``terminated``: right where termination never
     depends on the goal (Fetch), wrong where reaching the goal ends the episode (PointMaze with
     continuing_task=False), which is refused; without HER the goals are never relabelled."""
-    import gymnasium as gym
-
-    from common import cli
     from common.her import goal_task_reward
 
-    cli.register_goal_tasks()
-    spec = gym.spec("PointMaze_UMaze-v3")
-    kwargs = {**spec.kwargs, "continuing_task": False}
-    gym.register("PointMazeEnding-v3", spec.entry_point, max_episode_steps=300, kwargs=kwargs)
+    ending_maze()
     with pytest.raises(ValueError, match="terminates depending on the goal"):
         goal_task_reward("PointMazeEnding-v3")
     reward = goal_task_reward("PointMazeEnding-v3", her=False)
     assert reward(np.zeros((2, 2)), np.array([[0.0, 0.0], [5.0, 5.0]])).tolist() == [1.0, 0.0]
     fetch = goal_task_reward("FetchReach-v4")
     assert fetch(np.zeros((2, 3)), np.array([[0.0, 0, 0], [1.0, 0, 0]])).tolist() == [0.0, -1.0]
+
+
+def test_her_flags_a_run_would_ignore():
+    """``her.ignored``: all three flags on a task without goals; k and the strategy with
+    --no-her; the strategy alone at k = 0; none otherwise."""
+    assert her.FLAGS.split() == ["--her", "--her-n-sampled-goal", "--her-goal-selection-strategy"]
+    every, no_goals = her.FLAGS.split(), "Hopper-v5 is not a goal task"
+    assert her.ignored(her.HerArgs(), "Hopper-v5", False) == dict.fromkeys(every, no_goals)
+    no_her = her.ignored(her.HerArgs(her=False), "FetchReach-v4", True)
+    assert no_her == dict.fromkeys(every[1:], "--no-her")
+    k0 = her.ignored(her.HerArgs(her_n_sampled_goal=0), "FetchReach-v4", True)
+    assert k0 == {"--her-goal-selection-strategy": "--her-n-sampled-goal 0 relabels no goal"}
+    assert her.ignored(her.HerArgs(), "FetchReach-v4", True) == {}
+    assert (
+        her.ignored(her.HerArgs(her=False, her_n_sampled_goal=0), "FetchReach-v4", True) == no_her
+    )
+
+
+def test_her_refuses_a_negative_k_and_a_task_it_cannot_serve_and_says_when_it_is_off(capsys):
+    """``her.check``: a negative k is refused (before anything else); a task without goals
+    passes, with one line saying that HER is off; a goal task whose termination depends on the
+    goal is refused with HER on and passes with it off; Fetch passes, silently."""
+    line = "--her-n-sampled-goal must be non-negative, got -1"
+    assert her.check(her.HerArgs(her_n_sampled_goal=-1), "FetchReach-v4", True) == line
+    assert her.check(her.HerArgs(her_n_sampled_goal=-1), "Hopper-v5", False) == line
+    assert capsys.readouterr().out == ""
+    assert her.check(her.HerArgs(), "Hopper-v5", False) is None
+    assert capsys.readouterr().out == "Hopper-v5 has no goals: hindsight relabelling (HER) is off\n"
+    maze = ending_maze()
+    assert her.check(her.HerArgs(), maze, True) == her.hindsight_refusal(maze)
+    assert "terminates depending on the goal; " in her.hindsight_refusal(maze)
+    assert her.check(her.HerArgs(her=False), maze, True) is None
+    assert her.check(her.HerArgs(), "FetchReach-v4", True) is None
+    assert capsys.readouterr().out == ""
+
+
+def test_a_buffer_that_cannot_hold_one_episode_per_env_is_refused():
+    """``replay.buffer_refusal``: replay samples finished episodes only, so each env's rows
+    (buffer_size // num_envs) must hold the task's longest episode; a task without a time limit
+    has no such bound."""
+    assert replay.buffer_refusal(99, 2, "FetchReach-v4") == (
+        "--buffer-size 99 keeps 49 steps per env, less than one FetchReach-v4 episode (50 steps); "
+        "enlarge it"
+    )
+    assert replay.buffer_refusal(100, 2, "FetchReach-v4") is None  # exactly one episode each
+    assert replay.buffer_refusal(1999, 2, "Hopper-v5").startswith("--buffer-size 1999 keeps 999")
+    assert replay.buffer_refusal(2000, 2, "Hopper-v5") is None
+    if "NoTimeLimit-v0" not in gym.registry:
+        gym.register("NoTimeLimit-v0", "gymnasium.envs.classic_control:PendulumEnv")
+    assert gym.spec("NoTimeLimit-v0").max_episode_steps is None
+    assert replay.buffer_refusal(1, 1, "NoTimeLimit-v0") is None

@@ -1,7 +1,9 @@
-"""ipg_her.py: the nu = 0 identity with PPO-KL, the off-policy term, replay, smoke, bad input."""
+"""ipg_her.py: the nu = 0 identity with PPO-KL, the off-policy term, replay, smoke, bad input;
+ipg_her_recipe.py's recipe on top of it: the sigma rule, the action penalties, annealing."""
 
 import copy
 import itertools
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -20,9 +22,10 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 from toy_envs import counting_envs
 
 import ipg_her
+import ipg_her_recipe
 import ppo_kl
 from benchmarks import report
-from common import diagnostics
+from common import diagnostics, replay
 from common.her import HerReplayBuffer, sparse_return_range
 from common.normalizer import InputNormalizer
 
@@ -116,20 +119,23 @@ def test_at_nu_one_sigma_follows_only_the_kl_penalty_unless_q_bar_is_sampled(q_b
 
 
 @pytest.mark.parametrize(
-    "env_id, flags",
+    "script, env_id, flags",
     [
-        ("FetchReach-v4", ["--her"]),
-        ("FetchReach-v4", ["--no-her", "--nu", "0.5", "--use-cv", "--off-policy-states", "batch"]),
-        ("Hopper-v5", ["--num-steps", "100", "--twin-critic", "--critic-target", "sample"]),
-        ("FetchPush-v4", []),  # the fetch suite's tasks (benchmarks/run.py)
-        ("FetchPickAndPlace-v4", []),
-        ("FetchSlide-v4", []),
+        ("ipg_her", "FetchReach-v4", ["--her"]),
+        ("ipg_her", "FetchReach-v4",
+         ["--no-her", "--nu", "0.5", "--use-cv", "--off-policy-states", "batch"]),
+        ("ipg_her", "FetchPush-v4", []),  # the paper's algorithm on a hard task: it runs
+        ("ipg_her_recipe", "Hopper-v5",
+         ["--num-steps", "100", "--twin-critic", "--critic-target", "sample"]),
+        ("ipg_her_recipe", "FetchPush-v4", []),  # the fetch suite's tasks (benchmarks/run.py),
+        ("ipg_her_recipe", "FetchPickAndPlace-v4", []),  # each with its own defaults
+        ("ipg_her_recipe", "FetchSlide-v4", []),
     ],
-)
-def test_smoke(tmp_path, env_id, flags):
+)  # fmt: skip
+def test_smoke(tmp_path, script, env_id, flags):
     tiny = "--total-timesteps 400 --num-envs 2 --critic-steps 4 --update-epochs 2"
     tiny += " --eval-freq 200 --eval-episodes 2 --hidden 32 --save-model"
-    run_dir, tags = smoke_run("ipg_her.py", tmp_path, env_id, *tiny.split(), *flags)
+    run_dir, tags = smoke_run(f"{script}.py", tmp_path, env_id, *tiny.split(), *flags)
     expected = {
         "losses/critic_loss",
         "losses/q_values",
@@ -149,23 +155,28 @@ def test_smoke(tmp_path, env_id, flags):
     if env_id.startswith("Fetch"):
         expected |= {"charts/success_rate", "eval/success_rate"}
     assert expected <= set(tags), expected - set(tags)
+    assert ("ipg/alpha" in tags) == (script == "ipg_her_recipe")  # the sigma rule's, the recipe's
     assert len(tags["losses/critic_loss"]) >= 2 and len(tags["eval/episodic_return"]) >= 2
     ckpt = torch.load(run_dir / "model.pt", weights_only=False)
     assert {"agent", "qf", "qf_target", "normalizer", "args", "format_version"} <= set(ckpt)
     assert_saved_policy_replays_last_evaluation(run_dir, env_id)
 
 
-def test_anneal_lr_takes_both_learning_rates_linearly_to_zero(tmp_path):
-    """--anneal-lr (Slide's default): at iteration i of N, lr = (1 - (i - 1) / N) lr_0, for the
-    policy's Adam (charts/learning_rate) and the critic's (its state in resume.pt at the end)."""
+@pytest.mark.parametrize("script, flag", [("ipg_her_recipe", None), ("ipg_her", "--anneal-lr")])
+def test_anneal_lr_takes_the_learning_rates_linearly_to_zero(tmp_path, script, flag):
+    """--anneal-lr: at iteration i of N, lr = (1 - (i - 1) / N) lr_0 for the policy's Adam
+    (charts/learning_rate); the recipe's (Slide's default there) anneals the critic's too (its
+    state in resume.pt at the end), ipg_her.py's, as PPO's, the policy's alone."""
     flags = "--total-timesteps 400 --critic-steps 2 --update-epochs 1 --hidden 16 --eval-freq 0"
     flags += " --eval-episodes 1 --critic-learning-rate 2e-3 --resume-freq 400"
-    run_dir, tags = smoke_run("ipg_her.py", tmp_path, "FetchSlide-v4", *flags.split())
+    flags = [*flags.split(), *([flag] if flag else [])]
+    run_dir, tags = smoke_run(f"{script}.py", tmp_path, "FetchSlide-v4", *flags)
     fracs = [1.0, 0.75, 0.5, 0.25]  # N = 400 / 100 = 4 iterations
     logged = [value for _, value in tags["charts/learning_rate"]]
     np.testing.assert_allclose(logged, [1e-3 * f for f in fracs], rtol=1e-6)
     resume = torch.load(run_dir / "resume.pt", weights_only=False)
-    assert resume["q_optimizer"]["param_groups"][0]["lr"] == pytest.approx(2e-3 * fracs[-1])
+    critic_frac = fracs[-1] if script == "ipg_her_recipe" else 1.0
+    assert resume["q_optimizer"]["param_groups"][0]["lr"] == pytest.approx(2e-3 * critic_frac)
 
 
 def test_replayed_transitions_never_cross_a_reset_and_keep_the_true_final_observation():
@@ -289,11 +300,11 @@ def test_replay_rewards_are_scaled_like_gae_rewards():
     """sample_replay multiplies the stored (raw) rewards by the reward scale GAE's rewards got."""
     batches = []
     for scale in (1.0, 0.25):
-        rb = ipg_her.ReplayBuffer(100, 1, 2, 1, seed=0)
+        rb = replay.ReplayBuffer(100, 1, 2, 1, seed=0)
         for t in range(10):
             rb.add(np.full((1, 2), t), np.zeros((1, 1)), np.array([t - 5.0]),
                    np.full((1, 2), t + 1), np.zeros(1), np.array([t == 9]))  # fmt: skip
-        batches.append(ipg_her.sample_replay(rb, InputNormalizer(2, 0), scale, 32)[0])
+        batches.append(replay.sample_replay(rb, InputNormalizer(2, 0), scale, 32)[0])
     torch.testing.assert_close(batches[1]["rewards"], 0.25 * batches[0]["rewards"])
     assert batches[0]["rewards"].abs().sum() > 0
 
@@ -305,6 +316,20 @@ def test_critic_targets_are_clipped_only_where_the_reward_is_fetchs_0_or_minus_1
     fetch = lambda ag, g: reached(ag, g) - 1.0
     assert sparse_return_range(fetch, 3, 0.98) == pytest.approx((-50.0, 0.0))
     assert sparse_return_range(reached, 2, 0.98) is None
+
+
+def diagnostics_run(seed: int = 0):
+    """What ``interpolation_report`` reads of a ``Run``: the diagnostics' own random streams."""
+    return SimpleNamespace(diagnostics_rng=np.random.default_rng(seed),
+                           diagnostics_generator=torch.Generator().manual_seed(seed))  # fmt: skip
+
+
+def interpolation(agent, qf, b, args, states, chunks=4):
+    """``interpolation_report`` as ipg_her.py calls it, its replay always drawing ``states``."""
+    return diagnostics.interpolation_report(
+        agent, qf, b, args, lambda n, rng: [{"obs": states}], diagnostics_run(),
+        ipg_her.control_variate, ipg_her.ipg_loss, ipg_her.learning_signal, chunks,
+    )  # fmt: skip
 
 
 def test_gradient_diagnostics_measure_the_two_terms_and_the_control_variates_variance():
@@ -323,9 +348,7 @@ def test_gradient_diagnostics_measure_the_two_terms_and_the_control_variates_var
         noise -= noise.mean()
         noise -= (noise @ centred) / (centred @ centred) * centred  # orthogonal to A_bar
         b["advantages"] = cv + k * centred.norm() / noise.norm() * noise
-        d = diagnostics.interpolation_report(
-            agent, qf, b, cv, args, states, ipg_her.ipg_loss, ipg_her.learning_signal
-        )
+        d = interpolation(agent, qf, b, args, states)  # A_bar: the critic's on the batch, cv
         assert d["corr_adv_cv"] == pytest.approx(1 / np.sqrt(1 + k**2), abs=1e-4)
         adv = b["advantages"]
         sigma = adv.std() + 1e-8
@@ -338,10 +361,52 @@ def test_gradient_diagnostics_measure_the_two_terms_and_the_control_variates_var
         assert d["effective_nu"] == pytest.approx(off / (on + off), rel=1e-4)
         assert np.isfinite(d["explained_variance"])
     b["advantages"] = cv
-    d = diagnostics.interpolation_report(
-        agent, qf, b, cv, args, states, ipg_her.ipg_loss, ipg_her.learning_signal, chunks=8
-    )
+    d = interpolation(agent, qf, b, args, states, chunks=8)
     assert d["grad_var_cv"] < 0.5 * d["grad_var"]
+
+
+def test_gradient_diagnostics_measure_the_update_that_will_run():
+    """The report's off-policy states are the update's: one draw of the replay, from the
+    diagnostics' own stream (the training's never moves), or with --off-policy-states batch the
+    batch's (no draw); its A_bar is the batch's cv with --use-cv, else the critic's on the
+    batch, from the script's own ``control_variate``."""
+    torch.manual_seed(0)
+    agent, qf = ipg_her.Agent(5, 2, hidden=16), ipg_her.QNetwork(5, 2, 16)
+    b = random_batch(64, 5, 2, agent)
+    states, run, draws = torch.randn(32, 5), diagnostics_run(), []
+    params = agent.actor_parameters()
+
+    def replay_states(n, rng):
+        draws.append((n, rng))
+        return [{"obs": states}]
+
+    def off_norm(s, nu=0.3):  # nu |g_off|, g_off on the states s, at the update's 1/sigma
+        off_term = -qf(s, agent.actor_mean(s)).mean() / (b["advantages"].std() + 1e-8)
+        return nu * diagnostics.flat_grad(off_term, params).norm().item()
+
+    def measure(args, control_variate=ipg_her.control_variate):
+        return diagnostics.interpolation_report(
+            agent, qf, b, args, replay_states, run, control_variate, ipg_her.ipg_loss,
+            ipg_her.learning_signal,
+        )  # fmt: skip
+
+    d = measure(ipg_her.Args(nu=0.3))
+    assert draws == [(1, run.diagnostics_rng)]
+    assert d["off_grad_norm"] == pytest.approx(off_norm(states), rel=1e-4)
+    d = measure(ipg_her.Args(nu=0.3, off_policy_states="batch"))
+    assert len(draws) == 1  # no draw
+    assert d["off_grad_norm"] == pytest.approx(off_norm(b["obs"]), rel=1e-4)
+    assert off_norm(b["obs"]) != pytest.approx(off_norm(states), rel=1e-2)  # they differ
+    critics = ipg_her.control_variate(qf, agent, b["obs"], b["actions"])
+    d = measure(ipg_her.Args(nu=0.3))
+    assert d["corr_adv_cv"] == pytest.approx(diagnostics.correlation(b["advantages"], critics))
+
+    def unused(*_):
+        raise AssertionError("with --use-cv the batch's cv is A_bar")
+
+    b["cv"] = torch.randn(64, generator=torch.Generator().manual_seed(5))
+    d = measure(ipg_her.Args(nu=0.3, use_cv=True), unused)
+    assert d["corr_adv_cv"] == pytest.approx(diagnostics.correlation(b["advantages"], b["cv"]))
 
 
 def test_diagnostics_do_not_change_the_training(tmp_path):
@@ -419,16 +484,19 @@ def test_the_control_variate_waits_for_the_critic(tmp_path):
 
 
 def test_sigma_rule_is_one_step_of_dual_ascent_on_the_target_entropy():
-    """alpha moves by 0.01 (H_target - H), H_target = act_dim * (log(2 pi e) / 2 + log sigma*);
-    with a sigma* per dimension, each alpha_i by 0.01 (H(N(0, sigma*_i^2)) - H(N(0, sigma_i^2)))."""
+    """ipg_her_recipe.py's sigma rule: alpha moves by 0.01 (H_target - H), H_target = act_dim *
+    (log(2 pi e) / 2 + log sigma*); with a sigma* per dimension, each alpha_i by
+    0.01 (H(N(0, sigma*_i^2)) - H(N(0, sigma_i^2)))."""
     h_target = 4 * (0.5 * np.log(2 * np.pi * np.e) + np.log(0.5))
     log_std = np.zeros(4)  # the summed rule reads only its length
-    assert ipg_her.sigma_rule(0.3, h_target - 2.0, log_std, 0.5) == pytest.approx(0.3 + 0.02)
-    assert ipg_her.sigma_rule(0.3, h_target + 5.0, log_std, 0.5) == pytest.approx(0.3 - 0.05)
+    assert ipg_her_recipe.sigma_rule(0.3, h_target - 2.0, log_std, 0.5) == pytest.approx(0.3 + 0.02)
+    assert ipg_her_recipe.sigma_rule(0.3, h_target + 5.0, log_std, 0.5) == pytest.approx(0.3 - 0.05)
     h = lambda std: 0.5 * np.log(2 * np.pi * np.e * np.square(std))  # noqa: E731  H(N(0, std^2))
     sigma, target, alpha = np.array([0.5, 2.0, 1.0]), (1.0, 1.0, 0.3), np.array([0.1, 0.2, 0.3])
     expected = alpha + 0.01 * (h(np.array(target)) - h(sigma))
-    np.testing.assert_allclose(ipg_her.sigma_rule(alpha, 99.0, np.log(sigma), target), expected)
+    np.testing.assert_allclose(
+        ipg_her_recipe.sigma_rule(alpha, 99.0, np.log(sigma), target), expected
+    )
 
 
 @pytest.mark.parametrize("start_std", [0.2, 5.0])
@@ -436,15 +504,17 @@ def test_sigma_rule_grows_sigma_below_the_target_and_shrinks_it_above(start_std)
     """The rule alone (no critic, no KL penalty): from below the target sigma grows, from above it
     shrinks (alpha turns negative, which SAC's one-sided rule cannot), and it ends near target."""
     torch.manual_seed(0)
-    agent = ipg_her.Agent(3, 2, hidden=16, init_log_std=float(np.log(start_std)))
+    agent = ipg_her_recipe.Agent(3, 2, hidden=16, init_log_std=float(np.log(start_std)))
     optimizer = torch.optim.Adam(agent.parameters(), lr=0.05)
-    args = ipg_her.Args(nu=1.0, target_std=1.0, num_minibatches=1, update_epochs=5)
+    args = ipg_her_recipe.Args(nu=1.0, target_std=1.0, num_minibatches=1, update_epochs=5)
     alpha, alphas = 0.0, []
     for _ in range(60):
         b = random_batch(32, 3, 2, agent)
-        _, stats = ipg_her.ipg_update(agent, optimizer, b, 0.0, args, alpha=alpha)
+        _, stats = ipg_her_recipe.ipg_update(agent, optimizer, b, 0.0, args, alpha=alpha)
         log_std = agent.actor_logstd.detach().numpy()[0]
-        alpha = ipg_her.sigma_rule(alpha, stats["charts/policy_entropy"], log_std, args.target_std)
+        alpha = ipg_her_recipe.sigma_rule(
+            alpha, stats["charts/policy_entropy"], log_std, args.target_std
+        )
         alphas.append(alpha)
     sigma = agent.actor_logstd.exp().mean().item()
     assert (alphas[0] > 0) == (start_std < 1.0)  # the first step's sign: towards the target
@@ -460,15 +530,19 @@ def test_sigma_rule_per_dimension_moves_each_sigma_to_its_own_target():
     traces = []
     for target_std in (targets, float(np.exp(np.log(targets).mean()))):  # the same total H
         torch.manual_seed(0)
-        agent = ipg_her.Agent(3, 3, hidden=16)
+        agent = ipg_her_recipe.Agent(3, 3, hidden=16)
         optimizer = torch.optim.Adam(agent.parameters(), lr=0.05)
-        args = ipg_her.Args(nu=1.0, target_std=target_std, num_minibatches=1, update_epochs=5)
+        args = ipg_her_recipe.Args(
+            nu=1.0, target_std=target_std, num_minibatches=1, update_epochs=5
+        )
         alpha, trace = 0.0, []
         for _ in range(40):
-            _, stats = ipg_her.ipg_update(agent, optimizer, random_batch(32, 3, 3, agent), 0.0,
-                                          args, alpha=alpha)  # fmt: skip
+            b = random_batch(32, 3, 3, agent)
+            _, stats = ipg_her_recipe.ipg_update(agent, optimizer, b, 0.0, args, alpha=alpha)
             log_std = agent.actor_logstd.detach().numpy()[0]
-            alpha = ipg_her.sigma_rule(alpha, stats["charts/policy_entropy"], log_std, target_std)
+            alpha = ipg_her_recipe.sigma_rule(
+                alpha, stats["charts/policy_entropy"], log_std, target_std
+            )
             trace.append(np.exp(log_std))
         traces.append(np.array(trace))
     per_dim, summed = traces
@@ -481,22 +555,22 @@ def test_sigma_rule_per_dimension_moves_each_sigma_to_its_own_target():
 
 
 def test_bounds_loss_adds_the_gradient_of_the_squared_excess_beyond_the_bounds():
-    """One SGD step with --bounds-loss 0.5 moves the policy by the step without it plus the
-    gradient of 0.5 * mean((mu - clamp(mu, low, high))^2): mu(s) inside the bounds feels nothing,
-    mu(s) beyond them is pulled back (rl_games' bounds loss, at the action bounds)."""
+    """One SGD step with the recipe's --bounds-loss 0.5 moves the policy by the step without it
+    plus the gradient of 0.5 * mean((mu - clamp(mu, low, high))^2): mu(s) inside the bounds feels
+    nothing, mu(s) beyond them is pulled back (rl_games' bounds loss, at the action bounds)."""
     torch.manual_seed(0)
-    agent, states = ipg_her.Agent(5, 2, hidden=32), torch.randn(48, 5)
+    agent, states = ipg_her_recipe.Agent(5, 2, hidden=32), torch.randn(48, 5)
     with torch.no_grad():
         agent.actor_mean[-1].bias.copy_(torch.tensor([0.0, 1.0]))  # dim 1 at its upper bound
-    qf = ipg_her.QNetwork(5, 2, 32, low=-1.0, high=1.0)
+    qf = ipg_her_recipe.QNetwork(5, 2, 32, low=-1.0, high=1.0)
     mu = agent.actor_mean(states)
     assert (mu[:, 0].abs() < 1).all() and (mu[:, 1] > 1).any() and (mu[:, 1] < 1).any()
     b, steps = random_batch(64, 5, 2, agent), []
     for weight in (0.0, 0.5):
         a = copy.deepcopy(agent)
-        args = ipg_her.Args(nu=1.0, bounds_loss=weight, num_minibatches=1, update_epochs=1,
+        args = ipg_her_recipe.Args(nu=1.0, bounds_loss=weight, num_minibatches=1, update_epochs=1,
                             vf_coef=0.0, max_grad_norm=1e9)  # fmt: skip
-        ipg_her.ipg_update(a, torch.optim.SGD(a.parameters(), lr=1.0), b, 0.0, args, qf,
+        ipg_her_recipe.ipg_update(a, torch.optim.SGD(a.parameters(), lr=1.0), b, 0.0, args, qf,
                            replay_of(states))  # fmt: skip
         steps.append(torch.cat([p.detach().flatten() for p in a.actor_parameters()]))
     beyond = (mu - 1.0).clamp(min=0.0)  # by hand: only dim 1 ever exceeds a bound
@@ -508,18 +582,18 @@ def test_bounds_loss_adds_the_gradient_of_the_squared_excess_beyond_the_bounds()
 
 
 def test_action_penalty_adds_the_gradient_of_l2_mean_mu_squared():
-    """One SGD step (lr 1, no KL, no clipping) with --action-l2 0.5 moves the policy by the step
-    without it plus the gradient of 0.5 * mean(mu(s)^2) over the off-policy states."""
+    """One SGD step (lr 1, no KL, no clipping) with the recipe's --action-l2 0.5 moves the policy
+    by the step without it plus the gradient of 0.5 * mean(mu(s)^2) over the off-policy states."""
     torch.manual_seed(0)
-    agent, qf = ipg_her.Agent(5, 2, hidden=32), ipg_her.QNetwork(5, 2, 32)
+    agent, qf = ipg_her_recipe.Agent(5, 2, hidden=32), ipg_her_recipe.QNetwork(5, 2, 32)
     b, states = random_batch(64, 5, 2, agent), torch.randn(48, 5)
     steps = []
     for l2 in (0.0, 0.5):
-        a = ipg_her.Agent(5, 2, hidden=32)
+        a = ipg_her_recipe.Agent(5, 2, hidden=32)
         a.load_state_dict(agent.state_dict())
-        args = ipg_her.Args(nu=1.0, action_l2=l2, num_minibatches=1, update_epochs=1,
+        args = ipg_her_recipe.Args(nu=1.0, action_l2=l2, num_minibatches=1, update_epochs=1,
                             vf_coef=0.0, max_grad_norm=1e9)  # fmt: skip
-        ipg_her.ipg_update(a, torch.optim.SGD(a.parameters(), lr=1.0), b, 0.0, args, qf,
+        ipg_her_recipe.ipg_update(a, torch.optim.SGD(a.parameters(), lr=1.0), b, 0.0, args, qf,
                            replay_of(states))  # fmt: skip
         steps.append(torch.cat([p.detach().flatten() for p in a.actor_parameters()]))
     grads = torch.autograd.grad(0.5 * agent.actor_mean(states).pow(2).mean(),

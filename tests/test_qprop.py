@@ -281,10 +281,7 @@ def test_eta_modes():
     "env_id, flags",
     [
         ("Hopper-v5", ["--num-envs", "2", "--num-steps", "128", "--total-timesteps", "768"]),
-        (
-            "FetchReach-v4",
-            ["--num-envs", "2", "--num-steps", "50", "--total-timesteps", "300", "--twin-critic"],
-        ),
+        ("FetchReach-v4", ["--num-envs", "2", "--num-steps", "50", "--total-timesteps", "300"]),
     ],
 )
 def test_smoke_reaches_critic_and_qprop_updates(tmp_path, env_id, flags):
