@@ -8,6 +8,7 @@ folder exists). A check either returns or exits through ``fail``; it never chang
 import contextlib
 import dataclasses
 import difflib
+import importlib
 import io
 import math
 import os
@@ -48,10 +49,10 @@ def fail(message: str) -> NoReturn:
 
 
 def parse_args(args_class: type[A], argv: list[str] | None = None, prog: str | None = None,
-               task_defaults: dict | None = None,
+               task_defaults: Callable[[str], dict] | None = None,
                ignored: Callable[[A], dict[str, str]] | None = None) -> A:  # fmt: skip
     """``tyro.cli``, with a parse error reduced to one line (tyro draws a box). ``task_defaults``
-    ``{env_id: {field: value}}``: the task's own defaults, for the fields not given in ``argv``
+    ``env_id -> {field: value}``: the task's own defaults, for the fields not given in ``argv``
     (in any spelling) nor ``ignored(args)`` (``{flag: why}``, the flags the run would ignore);
     one line says which were taken."""
     captured, argv = io.StringIO(), sys.argv[1:] if argv is None else argv
@@ -63,14 +64,14 @@ def parse_args(args_class: type[A], argv: list[str] | None = None, prog: str | N
             fail(parse_error(captured.getvalue()))
         raise
     skip = {flag(name) for name in given(argv)} | set(ignored(args) if ignored else ())
-    own = {k: v for k, v in (task_defaults or {}).get(getattr(args, "env_id", None), {}).items()
-           if flag(k) not in skip}  # fmt: skip
+    own = task_defaults(args.env_id) if task_defaults else {}
+    own = {k: v for k, v in own.items() if flag(k) not in skip}
     for name, value in own.items():
         setattr(args, name, value)
     if own:
         typed = {k: " ".join(map(str, np.atleast_1d(v))) for k, v in own.items()}  # tuples too
         spelled = [flag(k) if v is True else f"{flag(k)} {typed[k]}" for k, v in own.items()]
-        print(f"{args.env_id}'s own defaults: {', '.join(spelled)}", flush=True)  # as typed
+        print(f"defaults for {args.env_id}: {', '.join(spelled)}", flush=True)  # as typed
     return args
 
 
@@ -217,13 +218,20 @@ def current_version(env_id: str) -> str | None:
 
 
 def check_task(env_id: str, num_envs: int = 1) -> bool:
-    """The task is registered, its dependencies are installed, ``num_envs`` copies of its
-    simulator fit in the free memory, its actions are continuous and its observations a vector
-    or a goal Dict (``observation``, ``achieved_goal``, ``desired_goal``, each a vector).
-    Returns whether it is a goal task."""
-    if env_id not in gym.registry:
-        close = current_version(env_id) or next(iter(difflib.get_close_matches(
-            env_id, gym.registry, n=1)), None)  # fmt: skip
+    """The task is registered (by its module, imported first, for an id ``module:Task-v0``), its
+    dependencies are installed, ``num_envs`` copies of its simulator fit in the free memory, its
+    actions are continuous and its observations a vector or a goal Dict (``GOAL_KEYS``, each a
+    vector). Returns whether it is a goal task."""
+    module, _, name = env_id.rpartition(":")
+    if module:  # gymnasium's "module:Task-v0": the module registers the task as it is imported
+        try:
+            importlib.import_module(module)
+        except Exception as e:
+            fail(f"--env-id {env_id}: cannot import {module} ({type(e).__name__}: {e})")
+    if name not in gym.registry:
+        close = current_version(name) or next(iter(difflib.get_close_matches(
+            name, gym.registry, n=1)), None)  # fmt: skip
+        close = close and env_id.removesuffix(name) + close  # with its module, if it has one
         hint = f"did you mean {close}?" if close else "use a registered id such as Hopper-v5"
         fail(f"unknown --env-id {env_id!r}; {hint}")
     try:
@@ -246,14 +254,31 @@ def check_task(env_id: str, num_envs: int = 1) -> bool:
     if not isinstance(action_space, gym.spaces.Box):
         fail(f"{env_id} has {type(action_space).__name__} actions; these scripts need continuous "
              "(Box) actions, e.g. Hopper-v5, FetchReach-v4")  # fmt: skip
-    goal_keys = ("observation", "achieved_goal", "desired_goal")
-    goal_task = isinstance(observation_space, gym.spaces.Dict) and all(
-        isinstance(observation_space.spaces.get(k), gym.spaces.Box) for k in goal_keys
-    )
-    if not (isinstance(observation_space, gym.spaces.Box) or goal_task):
+    if not (isinstance(observation_space, gym.spaces.Box) or goal_space(observation_space)):
         fail(f"{env_id}'s observations are not supported: a vector (Box) or a goal Dict with "
-             f"vector {', '.join(goal_keys)} are")  # fmt: skip
-    return goal_task
+             f"vector {', '.join(GOAL_KEYS)} are")  # fmt: skip
+    return goal_space(observation_space)
+
+
+GOAL_KEYS = ("observation", "achieved_goal", "desired_goal")
+
+
+def goal_space(space: gym.Space) -> bool:
+    """A goal task's observations: a Dict of vectors ``GOAL_KEYS`` (gymnasium-robotics' GoalEnv)."""
+    return isinstance(space, gym.spaces.Dict) and all(
+        isinstance(space.spaces.get(k), gym.spaces.Box) for k in GOAL_KEYS
+    )
+
+
+def goal_task(env_id: str) -> bool:
+    """Whether ``env_id`` is a goal task; False where it cannot be made (``check_task``: why)."""
+    try:
+        with warnings.catch_warnings(action="ignore"), contextlib.redirect_stderr(io.StringIO()):
+            env = gym.make(env_id)
+    except Exception:
+        return False
+    env.close()
+    return goal_space(env.observation_space)
 
 
 def check_video(env_id: str) -> None:

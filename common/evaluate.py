@@ -39,6 +39,7 @@ import tyro
 
 from common import checkpoint, cli, seeding
 from common.normalizer import InputNormalizer, RunningMeanStd
+from common.rollout import success_of
 
 
 @dataclass
@@ -116,8 +117,8 @@ class Policy:
 
     def evaluate(self, seeds: list[int], stochastic=False, video_dir=None, video_episodes=1):
         """One episode per reset seed: the episodic returns and, on goal tasks, the successes
-        (``is_success`` at the end). ``video_dir``: record the first ``video_episodes``."""
-        env = gym.make(self.env_id, render_mode="rgb_array" if video_dir else None)
+        (its success flag at the end). ``video_dir``: record the first ``video_episodes``."""
+        env = gym.make(self.env_id, **{"render_mode": "rgb_array"} if video_dir else {})
         if video_dir:
             follow_camera(env)
             env = gym.wrappers.RecordVideo(env, video_dir, lambda e: e < video_episodes,
@@ -131,8 +132,8 @@ class Policy:
                 obs, _, terminated, truncated, info = env.step(self(obs, stochastic))
                 done = terminated or truncated
             returns.append(info["episode"]["r"])
-            if "is_success" in info:
-                successes.append(info["is_success"])
+            if (success := success_of(info)) is not None:
+                successes.append(success)
         env.close()
         return np.array(returns, np.float64), np.array(successes, np.float64)
 

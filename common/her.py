@@ -74,7 +74,23 @@ def check(args: HerArgs, env_id: str, goal_task: bool) -> str | None:
         return f"--her-n-sampled-goal must be non-negative, got {args.her_n_sampled_goal}"
     if not goal_task:
         print(f"{env_id} has no goals: hindsight relabelling (HER) is off", flush=True)
+    if goal_task and (why := reward_refusal(env_id)):
+        return why
     return hindsight_refusal(env_id) if goal_task and args.her else None
+
+
+def reward_refusal(env_id: str) -> str | None:
+    """Why a goal task's ``compute_reward`` cannot serve, or None: relabelling and the critic's
+    target range call it on a batch of goals, ``(B, goal_dim)`` each, with ``info=None``."""
+    env = gym.make(env_id).unwrapped
+    goals = np.zeros((2, *env.observation_space["desired_goal"].shape))
+    try:
+        ok = np.shape(env.compute_reward(goals, goals + 1.0, None)) == (2,)
+    except Exception:
+        ok = False
+    return None if ok else (f"{env_id} has goals but no compute_reward(achieved_goal, "
+        "desired_goal, info) that takes a batch of goals and returns one reward each; HER "
+        "relabels with it (docs/your_goal_task.md)")  # fmt: skip
 
 
 class HerReplayBuffer(ReplayBuffer):

@@ -13,6 +13,13 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+SUCCESS_KEYS = ("is_success", "success")  # Fetch's and the Shadow hand's; the mazes'
+
+
+def success_of(info: dict):
+    """A goal task's success flag in ``info`` (per env in a vector env's), else None."""
+    return next((info[key] for key in SUCCESS_KEYS if key in info), None)
+
 
 def make_vector_env(make_env, num_envs: int) -> gym.vector.SyncVectorEnv:
     """``num_envs`` environments ``make_env()``, stepped in turn, resetting SAME_STEP."""
@@ -63,7 +70,7 @@ def collect_rollout(envs, agent, norm, raw_obs, num_steps: int, rb=None, update_
                 real_next_obs[i] = final
             ro["final_obs"][t, i] = norm(final)
             info = infos["final_info"]
-            success = float(info["is_success"][i]) if "is_success" in info else None
+            success = None if (flags := success_of(info)) is None else float(flags[i])
             episode_return, length = float(info["episode"]["r"][i]), int(info["episode"]["l"][i])
             episodes.append((t, i, episode_return, length, success))
         if rb is not None:

@@ -59,13 +59,13 @@ def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> No
 
 
 def parse(module, *argv: str):
-    """Parse and check ``argv`` as ``module``'s ``__main__`` does (a script with TASK_DEFAULTS:
+    """Parse and check ``argv`` as ``module``'s ``__main__`` does (a script with task_defaults:
     its task defaults, less the ones the run would ignore, ``module.ignored``); the ``Args``."""
     from common import cli
 
     argv, task = list(argv), {}
-    if hasattr(module, "TASK_DEFAULTS"):
-        task = dict(task_defaults=module.TASK_DEFAULTS, ignored=module.ignored)
+    if hasattr(module, "task_defaults"):
+        task = dict(task_defaults=module.task_defaults, ignored=module.ignored)
     args = cli.parse_args(module.Args, argv, **task)
     takes_argv = len(inspect.signature(module.check_args).parameters) > 1  # ppo_kl's: args only
     module.check_args(*(args, argv)[: 1 + takes_argv])

@@ -220,7 +220,7 @@ def test_every_suite_command_passes_its_scripts_checks(monkeypatch):
             argv = ["--env-id", r.env_id, "--seed", str(r.seed), *r.flags]
             kwargs = {}  # the recipe parses as its main does: its tasks' own defaults
             if module is ipg_her_recipe:
-                kwargs = {"task_defaults": module.TASK_DEFAULTS, "ignored": module.ignored}
+                kwargs = {"task_defaults": module.task_defaults, "ignored": module.ignored}
             try:
                 args = cli.parse_args(module.Args, argv, **kwargs)
                 params = module.check_args.__code__.co_argcount

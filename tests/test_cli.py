@@ -139,7 +139,7 @@ def test_the_recipes_flags_are_not_the_papers(capsys):
                            "grasped_start", "target_std", "twin_critic"]  # fmt: skip
     papers = [(f.name, f.default) for f in dataclasses.fields(ipg_her.Args)]
     assert set(papers) <= {(f.name, f.default) for f in dataclasses.fields(ipg_her_recipe.Args)}
-    assert not hasattr(ipg_her, "TASK_DEFAULTS") and not hasattr(ipg_her, "sigma_rule")
+    assert not hasattr(ipg_her, "task_defaults") and not hasattr(ipg_her, "sigma_rule")
     for name in RECIPE_ONLY:
         line = refused(capsys, ipg_her, cli.flag(name))
         assert line.startswith(f"error: unrecognized option {cli.flag(name)}"), line
@@ -219,19 +219,24 @@ def test_a_renderer_that_cannot_load_is_refused_before_training(tmp_path):
 
 
 def test_a_tasks_own_defaults_apply_where_no_flag_was_given(capsys):
-    """ipg_her_recipe.py's TASK_DEFAULTS: FetchPush takes them, a flag given wins, FetchReach
-    keeps the Args defaults; one line names what was taken."""
+    """ipg_her_recipe.py's task_defaults: a goal task without a row (FetchPush, the Shadow hand,
+    a maze, FetchReach) takes the RECIPE, a flag given wins, PickAndPlace and Slide take their
+    rows, a task without goals keeps the Args defaults; one line names what was taken."""
 
     def parse(*argv):
         return cli.parse_args(ipg_her_recipe.Args, list(argv),
-                              task_defaults=ipg_her_recipe.TASK_DEFAULTS)  # fmt: skip
+                              task_defaults=ipg_her_recipe.task_defaults)  # fmt: skip
 
     push = parse("--env-id", "FetchPush-v4", "--hidden=64")
     taken = (push.hidden, push.target_std, push.normalization, push.action_l2)
     assert taken == (64, 1.0, "paper", 1.0)
-    line = "own defaults: --target-std 1.0, --normalization paper, --action-l2 1.0, --twin-critic\n"
+    line = "FetchPush-v4: --target-std 1.0, --normalization paper, --action-l2 1.0, --twin-critic\n"
     assert capsys.readouterr().out.endswith(line)  # spelled as one would type them
-    assert vars(parse("--env-id", "FetchReach-v4")) == vars(ipg_her_recipe.Args())
+    for env_id in ("HandReach-v3", "PointMaze_Medium-v3", "FetchReach-v4"):
+        assert vars(parse("--env-id", env_id)) == vars(ipg_her_recipe.Args(env_id=env_id)) | (
+            ipg_her_recipe.RECIPE)  # fmt: skip
+        assert capsys.readouterr().out.startswith(f"defaults for {env_id}: --hidden 256,")
+    assert vars(parse("--env-id", "Hopper-v5")) == vars(ipg_her_recipe.Args(env_id="Hopper-v5"))
     assert capsys.readouterr().out == ""
     assert parse("--env-id", "FetchPush-v4").twin_critic  # a boolean default of the task's
     assert not parse("--env-id", "FetchPush-v4", "--no-twin-critic").twin_critic  # the flag wins

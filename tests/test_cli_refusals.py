@@ -38,7 +38,7 @@ def test_a_flag_given_in_any_spelling_beats_the_tasks_default(capsys, argv, fiel
         args = parse(ipg_her_recipe, *PUSH, *typed.split())
         assert getattr(args, field) == value
         line = capsys.readouterr().out.strip().splitlines()[0]
-        assert line.startswith("FetchPush-v4's own defaults: --hidden 256, ")
+        assert line.startswith("defaults for FetchPush-v4: --hidden 256, ")
         assert cli.flag(field) not in line  # not called the task's own
 
 
@@ -165,9 +165,7 @@ def test_qprop_without_advantage_normalisation_refuses_a_normalization_mode(caps
 
 def test_task_defaults_the_run_would_ignore_are_neither_applied_nor_printed(capsys):
     args = parse(ipg_her_recipe, *PUSH, "--nu", "0")
-    assert (
-        capsys.readouterr().out == "FetchPush-v4's own defaults: --hidden 256, --target-std 1.0\n"
-    )
+    assert capsys.readouterr().out == "defaults for FetchPush-v4: --hidden 256, --target-std 1.0\n"
     assert (args.twin_critic, args.action_l2, args.normalization) == (False, 0.0, "unbiased")
     assert (args.hidden, args.target_std) == (256, 1.0)  # the policy's: applied
     args = parse(ipg_her_recipe, *PUSH, "--nu", "0", "--use-cv")  # the critic counts again
@@ -268,10 +266,20 @@ def test_an_old_task_version_suggests_the_current_one(capsys, old, current):
     assert refused(capsys, ppo_kl, "--env-id", "FetchReach-v9").endswith("FetchReach-v4?")
 
 
+def test_a_task_of_a_users_module_is_imported_first_and_a_missing_one_refused(capsys):
+    """gymnasium's ``module:Task-v0``: the module registers the task (docs/your_goal_task.md)."""
+    args = parse(ipg_her, "--env-id", "tests.point_goal:PointGoal-v0")
+    assert args.env_id == "tests.point_goal:PointGoal-v0"
+    line = refused(capsys, ipg_her, "--env-id", "no_such_module:PointGoal-v0")
+    assert "cannot import no_such_module (ModuleNotFoundError" in line, line
+    line = refused(capsys, ipg_her, "--env-id", "tests.point_goal:PointGoal-v9")
+    assert line.endswith("did you mean tests.point_goal:PointGoal-v0?"), line
+
+
 # row 19: a task without goals trains without HER, and says so
 @pytest.mark.parametrize("script", IPG)
 def test_ipg_on_a_task_without_goals_says_hindsight_is_off(capsys, script):
     parse(IPG[script], "--env-id", "Hopper-v5")
     assert capsys.readouterr().out == "Hopper-v5 has no goals: hindsight relabelling (HER) is off\n"
     parse(IPG[script], "--env-id", "FetchReach-v4")
-    assert capsys.readouterr().out == ""
+    assert "HER" not in capsys.readouterr().out  # the recipe prints the defaults it takes

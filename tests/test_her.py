@@ -246,6 +246,29 @@ def test_her_refuses_a_negative_k_and_a_task_it_cannot_serve_and_says_when_it_is
     assert capsys.readouterr().out == ""
 
 
+def test_a_goal_task_without_a_batched_compute_reward_is_refused():
+    """Relabelling calls ``compute_reward`` on a batch of goals: a goal task with none, or with
+    one that returns a single reward for a batch, is refused (HER on or off: the critic's
+    target range reads it too); the docs' example and the maze pass."""
+    from toy_envs import CountingGoalEnv
+
+    class ScalarReward(CountingGoalEnv):
+        def compute_reward(self, achieved_goal, desired_goal, info):
+            return -float(np.linalg.norm(achieved_goal - desired_goal) > 0.1)
+
+    for env_class in (CountingGoalEnv, ScalarReward):
+        env_id = f"{env_class.__name__}-v0"
+        if env_id not in gym.registry:
+            gym.register(env_id, env_class, max_episode_steps=5)
+        for args in (her.HerArgs(), her.HerArgs(her=False)):
+            assert her.check(args, env_id, True).startswith(
+                f"{env_id} has goals but no compute_reward(achieved_goal, desired_goal, info) "
+                "that takes a batch of goals and returns one reward each"
+            )
+    assert her.reward_refusal("tests.point_goal:PointGoal-v0") is None
+    assert her.reward_refusal("PointMaze_UMaze-v3") is None
+
+
 def test_a_buffer_that_cannot_hold_one_episode_per_env_is_refused():
     """``replay.buffer_refusal``: replay samples finished episodes only, so each env's rows
     (buffer_size // num_envs) must hold the task's longest episode; a task without a time limit
@@ -261,3 +284,27 @@ def test_a_buffer_that_cannot_hold_one_episode_per_env_is_refused():
         gym.register("NoTimeLimit-v0", "gymnasium.envs.classic_control:PendulumEnv")
     assert gym.spec("NoTimeLimit-v0").max_episode_steps is None
     assert replay.buffer_refusal(1, 1, "NoTimeLimit-v0") is None
+
+
+def test_a_maze_reports_its_success_as_fetch_does(tmp_path):
+    """The mazes put ``success`` in ``info``, not ``is_success``: training's success rate, the
+    evaluation's and the run's last line carry it all the same."""
+    from conftest import run_script, scalars
+
+    result = run_script(
+        "ipg_her.py",
+        tmp_path,
+        "--env-id",
+        "PointMaze_UMaze-v3",
+        "--total-timesteps",
+        "600",
+        "--eval-freq",
+        "600",
+        "--eval-episodes",
+        "2",
+    )
+    assert result.returncode == 0, result.stderr
+    (run_dir,) = tmp_path.iterdir()
+    tags = scalars(run_dir)
+    assert len(tags["charts/success_rate"]) == 2 and len(tags["eval/success_rate"]) == 1
+    assert "success" in result.stdout.strip().splitlines()[-1]

@@ -1,4 +1,5 @@
-"""The learning check: IPG + HER must solve FetchReach-v4 within a short budget.
+"""The learning checks: IPG + HER must solve FetchReach-v4, and the recipe a goal task of a user's
+own (tests/point_goal.py, docs/your_goal_task.md), within short budgets.
 
 Budget and threshold come from measured seeds (README, "Results"): with the defaults every seed
 measured (1-5 and 21-25) had an evaluation success rate of 1.0 by 2,000 steps, while --no-her and
@@ -25,3 +26,17 @@ def test_ipg_her_learns_fetchreach(tmp_path, seed):
     (run_dir,) = run_dirs(tmp_path)
     success = scalars(run_dir)["eval/success_rate"][-1][1]
     assert success >= THRESHOLD, f"eval success {success} < {THRESHOLD} after 3,000 steps"
+
+
+def test_the_recipe_learns_a_goal_task_of_your_own(tmp_path):
+    """The docs' example task, named as a user names theirs (``module:Task-v0``), with the recipe's
+    defaults for a goal task without a row of its own. Measured: success 1.00 on 50 episodes at
+    2,500 steps on seeds 1-4; with --no-her 0.02 on seeds 1-2 (docs/your_goal_task.md)."""
+    result = run_script("ipg_her_recipe.py", tmp_path, "--env-id", "tests.point_goal:PointGoal-v0",
+                        "--total-timesteps", "2500", "--eval-freq", "0", "--eval-episodes", "20",
+                        timeout=300)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert "defaults for tests.point_goal:PointGoal-v0: --hidden 256," in result.stdout
+    (run_dir,) = run_dirs(tmp_path)
+    success = scalars(run_dir)["eval/success_rate"][-1][1]
+    assert success >= 0.9, f"eval success {success} < 0.9 after 2,500 steps"
