@@ -28,6 +28,8 @@ The suites (``SUITES``: one row per variant x task, each on its seeds; ``--seeds
 - ``push``: the paper's IPG+HER (``ipg_her.py``, no recipe) on FetchPush, ``--push-steps`` each.
 - ``fetch``: the recipe with no flag but the task's budget on Push, PickAndPlace and Slide, fresh
   seeds; one critic, mixing at nu 0.5 and 0.8, and each task's earlier defaults beside it.
+- ``goals``: the recipe's defaults, no flag but the budget, on goal tasks none of its settings
+  was chosen on: the Shadow hand (HandReach, HandManipulateBlockRotateZ) and PointMaze_Medium.
 """
 
 import ctypes
@@ -53,8 +55,9 @@ ROOT = Path(__file__).resolve().parents[1]
 class Args:
     """Run a suite of script x task x seed, one process each; a later call resumes it."""
 
-    suite: Literal["paper", "ablations", "eta", "mixing", "push", "fetch", "hopper", "quick"]
-    """which grid: quick (seconds), paper (hours), eta, ablations, mixing, hopper, push, fetch"""
+    suite: Literal["paper", "ablations", "eta", "mixing", "push", "fetch", "hopper", "goals",
+                   "quick"]  # fmt: skip
+    """which grid (the module's docstring): quick takes seconds, paper hours"""
     seeds: tuple[int, ...] = ()
     """override the suite's seeds"""
     only: str = ""
@@ -248,6 +251,13 @@ SUITES: dict[str, tuple[tuple[int, ...], list[tuple]]] = {
           for kind, flags in (("", ()), ("_1critic", ONE_CRITIC),
                               ("_eq10", ("--normalization", "unbiased")))
           for nu in ("0.8", "0.5")],
+    ]),
+    "goals": ((301, 302, 303), [  # the recipe's defaults on goal tasks no run was tuned on
+        ("ipg_her_300k", RECIPE, "HandReach-v3", ("--total-timesteps", "300000", *FETCH_EVERY)),
+        ("ipg_her_1000k", RECIPE, "HandManipulateBlockRotateZ-v1",
+         ("--total-timesteps", "1000000", *FETCH_EVERY)),
+        ("ipg_her_300k", RECIPE, "PointMaze_Medium-v3",
+         ("--total-timesteps", "300000", *FETCH_EVERY)),
     ]),
     "quick": ((1,), [
         ("ppo_kl", PPO, HOPPER, ("--total-timesteps", "512", *TINY)),
