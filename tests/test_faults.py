@@ -179,7 +179,9 @@ def test_a_signal_during_the_last_evaluation_stops_at_once(tmp_path):
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 143 and "Traceback" not in err, err
-    assert time.time() - sent < 5, f"took {time.time() - sent:.0f} s to stop"
+    # saving takes seconds on a loaded machine (CI runs the tests two at a time); waiting for the
+    # evaluation would take minutes
+    assert time.time() - sent < 20, f"took {time.time() - sent:.0f} s to stop"
 
 
 def test_a_second_run_of_a_folder_in_use_is_refused(finished_run):
