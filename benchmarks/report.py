@@ -41,6 +41,9 @@ THRESHOLDS = {
     "FetchPush-v4": ("eval/success_rate", 0.5),
     "FetchPickAndPlace-v4": ("eval/success_rate", 0.9),
     "FetchSlide-v4": ("eval/success_rate", 0.7),
+    "HandReach-v3": ("eval/success_rate", 0.9),
+    "HandManipulateBlockRotateZ-v1": ("eval/success_rate", 0.9),
+    "PointMaze_Medium-v3": ("eval/success_rate", 0.9),
 }
 BUDGETS = {  # the success table's columns: FetchReach's scale, or the harder Fetch tasks'
     "push": (100_000, 200_000, 300_000, 500_000, 1_000_000, 1_500_000),
@@ -58,7 +61,13 @@ TASK_LEVELS = {  # the per-task table's levels: evaluation success, or Hopper's 
     "Hopper-v5": ("eval/episodic_return", (1000.0, 2000.0, 3000.0)),
 }
 GOAL_LEVELS = ("eval/success_rate", (0.5, 0.7, 0.9))
+GOAL_TASKS = ("Fetch", "Hand", "PointMaze", "AntMaze")  # gymnasium-robotics' goal tasks
 SIDE_BY_SIDE = Path(__file__).parent / "results" / "against_sb3" / "results.json"
+
+
+def goal_task(env_id: str) -> bool:
+    """A goal task's figure is its evaluation success; any other task's, its return."""
+    return env_id.startswith(GOAL_TASKS)
 
 
 @dataclass
@@ -519,7 +528,7 @@ def task_levels(env_id: str) -> tuple[str, tuple[float, ...]]:
     """The per-task table's figure and levels: evaluation success on goal tasks, else return."""
     if env_id in TASK_LEVELS:
         return TASK_LEVELS[env_id]
-    return GOAL_LEVELS if env_id.startswith("Fetch") else ("eval/episodic_return", ())
+    return GOAL_LEVELS if goal_task(env_id) else ("eval/episodic_return", ())
 
 
 def task_tables(groups: dict, peers: dict, seed: int) -> str:
@@ -587,7 +596,7 @@ def task_tables_note(groups: dict, peers: dict) -> str:
     goal = any(task_levels(e)[0] == "eval/success_rate" for e in envs)
     shown = {p.label: p for e in envs if task_levels(e)[0] == "eval/success_rate"
              for p in peers.get(e, [])}  # fmt: skip
-    what = ["the success rate (Fetch)"] * goal + ["the mean return (Hopper)"] * hopper
+    what = ["the success rate (goal tasks)"] * goal + ["the mean return (Hopper)"] * hopper
     what = " and ".join(what)
     text = (
         "Per task: *final eval*: each seed's last evaluation of the deterministic policy, "
@@ -607,7 +616,7 @@ def task_tables_note(groups: dict, peers: dict) -> str:
             f"{max(ratios):.2f} times the training time so derived."
         )
     if goal:
-        text += " Fetch levels: evaluation success 0.5, 0.7 and 0.9."
+        text += " Goal-task levels: evaluation success 0.5, 0.7 and 0.9."
     if hopper:
         text += (
             " Hopper levels: evaluation return 1000, 2000 and 3000 (the span of the paper's "
@@ -654,7 +663,7 @@ def finalists_table(groups: dict, rng, first_fresh: int = FRESH_SEED) -> str:
         runs = [groups[group][str(s)] for s in seeds]
         if len(runs) < 2:
             continue
-        goal = env_id.startswith("Fetch")
+        goal = goal_task(env_id)
         tag, early, digits = ("eval/success_rate", 2_500, 2) if goal else \
             ("eval/episodic_return", 100_000, 0)  # fmt: skip
         cells = [
@@ -804,7 +813,7 @@ def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> 
             if parsed[group] and parsed[group][2] == env_id:
                 nu, variant, _ = parsed[group]
                 variants[variant][nu] = list(runs.values())
-        goal = env_id.startswith("Fetch")
+        goal = goal_task(env_id)
         tag = "eval/success_rate" if goal else "eval/episodic_return"
         first = early if goal else 100_000  # the early budget, in steps
         fig, axes = plt.subplots(1, 2, figsize=(11, 4))
@@ -912,7 +921,7 @@ def main(args: Args) -> int:
         for env_id in sorted({g.split("__")[1] for g in groups}):
             names = sorted(g.split("__")[0] for g in groups if g.endswith(f"__{env_id}"))
             fig, ax = plt.subplots(figsize=(7, 4))
-            if env_id.startswith("Fetch"):
+            if goal_task(env_id):
                 plot(ax, groups, names, env_id, "eval/success_rate", rng,
                      per_episode=args.suite != "fetch", median=args.suite == "fetch")  # fmt: skip
                 draw_anchors(ax, peers.get(env_id, []), per_episode=args.suite != "fetch")

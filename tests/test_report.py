@@ -516,3 +516,12 @@ def test_the_committed_side_by_side_run_reads_as_it_recorded_itself():
     for key, name in (("sb3_ddpg_her", "SB3"), ("ipg_her", "IPG+HER")):
         assert peers[name].first[0.9] == [r["steps_to_0.9"] for r in recorded[key]]
         assert peers[name].seconds[0.9] == [r["train_s_to_0.9"] for r in recorded[key]]
+
+
+def test_every_goal_task_is_reported_by_its_success():
+    """The goals suite's tasks, like Fetch's: evaluation success at 0.5 / 0.7 / 0.9."""
+    for env_id in ("FetchPush-v4", "HandReach-v3", "HandManipulateBlockRotateZ-v1",
+                   "PointMaze_Medium-v3"):  # fmt: skip
+        assert report.task_levels(env_id) == report.GOAL_LEVELS
+        assert report.THRESHOLDS[env_id][0] == "eval/success_rate"
+    assert report.task_levels("Hopper-v5")[0] == "eval/episodic_return"
