@@ -525,3 +525,19 @@ def test_every_goal_task_is_reported_by_its_success():
         assert report.task_levels(env_id) == report.GOAL_LEVELS
         assert report.THRESHOLDS[env_id][0] == "eval/success_rate"
     assert report.task_levels("Hopper-v5")[0] == "eval/episodic_return"
+
+
+def test_the_paired_comparison_matches_its_definition():
+    """benchmarks/paired.py: differences seed by seed on the seeds both ran, the mean with a
+    bootstrap interval inside the differences' range, and the exact two-sided sign-flip test:
+    four differences of one sign give p = 2 / 2^4 (all signs kept, or all flipped)."""
+    from benchmarks import paired
+
+    export = {"a": {str(s): {"final": f} for s, f in ((1, 10.0), (2, 20.0), (3, 30.0), (4, 5.0))},
+              "b": {str(s): {"final": f} for s, f in ((1, 12.0), (2, 21.0), (3, 33.0), (4, 9.0),
+                                                      (5, 0.0))}}  # fmt: skip
+    r = paired.paired(export, "a", "b")
+    assert r["seeds"] == ["1", "2", "3", "4"]
+    assert r["difference"].tolist() == [-2.0, -1.0, -3.0, -4.0] and r["mean"] == -2.5
+    assert -4.0 <= r["interval"][0] < -2.5 < r["interval"][1] <= -1.0
+    assert r["p"] == 2 / 16
