@@ -12,7 +12,8 @@ relabels what the critic and the off-policy term see; the likelihood-ratio term 
 The variant: ``ipg_her.py`` plus the recipe the hard Fetch tasks need (docs/ipg_her_recipe.md), each
 one measured on them: twin critics (TD3, Fujimoto et al. 2018), an entropy-targeted sigma (SAC's
 alpha rule, Haarnoja et al. 2018), an action penalty (OpenAI's HER) and a bounds loss (rl_games),
-annealed learning rates, grasped starts (HER sec. 4.1): on any goal task, and tuned further for two.
+annealed learning rates and grasped starts (HER sec. 4.1). Every goal task takes the twin critics,
+the sigma rule and the action penalty (RECIPE); PickAndPlace and Slide rows of their own.
 """
 
 import copy
@@ -42,15 +43,15 @@ BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch canno
 RECIPE = dict(
     hidden=256, target_std=1.0, normalization="paper", action_l2=1.0, twin_critic=True
 )  # every goal task's defaults, each one measured on FetchPush (docs)
-TASK_DEFAULTS = {  # the tasks that need more; sigma per x, y, z, gripper
+TASK_DEFAULTS = {  # the two tasks with rows of their own; sigma per x, y, z, gripper
     "FetchPickAndPlace-v4": RECIPE | dict(grasped_start=0.5, target_std=(1.0, 1.0, 1.0, 0.3)),
     "FetchSlide-v4": RECIPE | dict(target_std=(0.3, 0.3, 0.3, 1.0), action_l2=0.0,
                                    bounds_loss=1.0, anneal_lr=True)}  # fmt: skip
 
 
 def task_defaults(env_id: str) -> dict:
-    """The task's row of TASK_DEFAULTS, else on a goal task the RECIPE, else none; flags win."""
-    return TASK_DEFAULTS.get(env_id) or (RECIPE if cli.goal_task(env_id) else {})
+    """The task's row of TASK_DEFAULTS, else on a goal task the RECIPE, else none."""
+    return TASK_DEFAULTS.get(cli.task_name(env_id)) or (RECIPE if cli.goal_task(env_id) else {})
 
 
 @dataclass

@@ -65,7 +65,7 @@ GOAL_TASKS = ("Fetch", "Hand", "PointMaze", "AntMaze")  # gymnasium-robotics' go
 SIDE_BY_SIDE = Path(__file__).parent / "results" / "against_sb3" / "results.json"
 
 
-def goal_task(env_id: str) -> bool:
+def reported_by_success(env_id: str) -> bool:
     """A goal task's figure is its evaluation success; any other task's, its return."""
     return env_id.startswith(GOAL_TASKS)
 
@@ -528,7 +528,7 @@ def task_levels(env_id: str) -> tuple[str, tuple[float, ...]]:
     """The per-task table's figure and levels: evaluation success on goal tasks, else return."""
     if env_id in TASK_LEVELS:
         return TASK_LEVELS[env_id]
-    return GOAL_LEVELS if goal_task(env_id) else ("eval/episodic_return", ())
+    return GOAL_LEVELS if reported_by_success(env_id) else ("eval/episodic_return", ())
 
 
 def task_tables(groups: dict, peers: dict, seed: int) -> str:
@@ -663,7 +663,7 @@ def finalists_table(groups: dict, rng, first_fresh: int = FRESH_SEED) -> str:
         runs = [groups[group][str(s)] for s in seeds]
         if len(runs) < 2:
             continue
-        goal = goal_task(env_id)
+        goal = reported_by_success(env_id)
         tag, early, digits = ("eval/success_rate", 2_500, 2) if goal else \
             ("eval/episodic_return", 100_000, 0)  # fmt: skip
         cells = [
@@ -813,7 +813,7 @@ def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> 
             if parsed[group] and parsed[group][2] == env_id:
                 nu, variant, _ = parsed[group]
                 variants[variant][nu] = list(runs.values())
-        goal = goal_task(env_id)
+        goal = reported_by_success(env_id)
         tag = "eval/success_rate" if goal else "eval/episodic_return"
         first = early if goal else 100_000  # the early budget, in steps
         fig, axes = plt.subplots(1, 2, figsize=(11, 4))
@@ -921,7 +921,7 @@ def main(args: Args) -> int:
         for env_id in sorted({g.split("__")[1] for g in groups}):
             names = sorted(g.split("__")[0] for g in groups if g.endswith(f"__{env_id}"))
             fig, ax = plt.subplots(figsize=(7, 4))
-            if goal_task(env_id):
+            if reported_by_success(env_id):
                 plot(ax, groups, names, env_id, "eval/success_rate", rng,
                      per_episode=args.suite != "fetch", median=args.suite == "fetch")  # fmt: skip
                 draw_anchors(ax, peers.get(env_id, []), per_episode=args.suite != "fetch")

@@ -219,15 +219,14 @@ def current_version(env_id: str) -> str | None:
 
 def check_task(env_id: str, num_envs: int = 1) -> bool:
     """The task is registered (by its module, imported first, for an id ``module:Task-v0``), its
-    dependencies are installed, ``num_envs`` copies of its simulator fit in the free memory, its
-    actions are continuous and its observations a vector or a goal Dict (``GOAL_KEYS``, each a
-    vector). Returns whether it is a goal task."""
-    module, _, name = env_id.rpartition(":")
-    if module:  # gymnasium's "module:Task-v0": the module registers the task as it is imported
-        try:
-            importlib.import_module(module)
-        except Exception as e:
-            fail(f"--env-id {env_id}: cannot import {module} ({type(e).__name__}: {e})")
+    dependencies are installed, ``num_envs`` copies of its simulator fit in the free memory, it
+    has a time limit, its actions are continuous and its observations a vector or a goal Dict
+    (``GOAL_KEYS``, each a vector). Returns whether it is a goal task."""
+    try:
+        name = import_task(env_id)
+    except Exception as e:
+        fail(f"--env-id {env_id}: cannot import {env_id.rpartition(':')[0]} "
+             f"({type(e).__name__}: {e})")  # fmt: skip
     if name not in gym.registry:
         close = current_version(name) or next(iter(difflib.get_close_matches(
             name, gym.registry, n=1)), None)  # fmt: skip
@@ -239,10 +238,13 @@ def check_task(env_id: str, num_envs: int = 1) -> bool:
             env = gym.make(env_id)
     except gym.error.DependencyNotInstalled as e:
         if "mujoco_py" in str(e):
-            current = current_version(env_id) or "a v4 or v5 MuJoCo task such as Hopper-v5"
+            current = current_version(name) or "a v4 or v5 MuJoCo task such as Hopper-v5"
             fail(f"{env_id} needs the deprecated mujoco-py, which this project does not support; "
                  f"use {current}")  # fmt: skip
         fail(f"{env_id} needs a dependency that is not installed: {' '.join(map(str, e.args))}")
+    if env.spec.max_episode_steps is None:  # the replay and the evaluation wait for ends
+        fail(f"{env_id} has no time limit: register it with max_episode_steps, so that its "
+             "episodes end")  # fmt: skip
     action_space, observation_space = env.action_space, env.observation_space
     if (model := getattr(env.unwrapped, "model", None)) is not None:  # a MuJoCo task
         need = num_envs * (model.nbuffer + env.unwrapped.data.nbuffer + env.unwrapped.data.narena)
@@ -263,11 +265,23 @@ def check_task(env_id: str, num_envs: int = 1) -> bool:
 GOAL_KEYS = ("observation", "achieved_goal", "desired_goal")
 
 
+def task_name(env_id: str) -> str:
+    """The id gymnasium registered: ``Task-v0`` for gymnasium's ``module:Task-v0``, else the id."""
+    return env_id.rpartition(":")[2]
+
+
+def import_task(env_id: str) -> str:
+    """``task_name(env_id)``, once the module of a ``module:Task-v0`` is imported (it registers
+    the task as it is imported)."""
+    if ":" in env_id:
+        importlib.import_module(env_id.rpartition(":")[0])
+    return task_name(env_id)
+
+
 def goal_space(space: gym.Space) -> bool:
     """A goal task's observations: a Dict of vectors ``GOAL_KEYS`` (gymnasium-robotics' GoalEnv)."""
-    return isinstance(space, gym.spaces.Dict) and all(
-        isinstance(space.spaces.get(k), gym.spaces.Box) for k in GOAL_KEYS
-    )
+    boxes = [space.spaces.get(k) for k in GOAL_KEYS] if isinstance(space, gym.spaces.Dict) else []
+    return bool(boxes) and all(isinstance(b, gym.spaces.Box) and len(b.shape) == 1 for b in boxes)
 
 
 def goal_task(env_id: str) -> bool:
@@ -283,6 +297,10 @@ def goal_task(env_id: str) -> bool:
 
 def check_video(env_id: str) -> None:
     """``--capture-video`` needs moviepy and a renderer: try both before training starts."""
+    with warnings.catch_warnings(action="ignore"):
+        modes = gym.make(env_id).metadata.get("render_modes", [])
+    if "rgb_array" not in modes:
+        fail(f"--capture-video: {env_id} renders no rgb_array frames (render_modes {modes})")
     try:
         import moviepy  # noqa: F401
 

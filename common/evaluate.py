@@ -162,7 +162,11 @@ def load_policy(path: str, env_id: str | None = None) -> Policy:
     content = checkpoint.load(path)
     env_id = env_id or content["args"]["env_id"]
     cli.register_goal_tasks()
-    if env_id not in gym.registry:
+    try:
+        registered = cli.import_task(env_id) in gym.registry  # a module:Task-v0's module first
+    except ImportError:
+        registered = False
+    if not registered:
         raise ValueError(f"unknown --env-id {env_id!r}: not a registered gymnasium id")
     return Policy(content, env_id)
 

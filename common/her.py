@@ -68,8 +68,9 @@ def ignored(args: HerArgs, env_id: str, goal_task: bool) -> dict[str, str]:
 
 
 def check(args: HerArgs, env_id: str, goal_task: bool) -> str | None:
-    """Why HER's flags cannot serve this run, or None: a negative k, or a goal task
-    ``hindsight_refusal`` refuses. On a task without goals, says that HER is off."""
+    """Why HER's flags cannot serve this run, or None: a negative k, a goal task without a
+    batched reward (``reward_refusal``), or one ``hindsight_refusal`` refuses. On a task without
+    goals, says that HER is off."""
     if args.her_n_sampled_goal < 0:
         return f"--her-n-sampled-goal must be non-negative, got {args.her_n_sampled_goal}"
     if not goal_task:
@@ -89,8 +90,8 @@ def reward_refusal(env_id: str) -> str | None:
     except Exception:
         ok = False
     return None if ok else (f"{env_id} has goals but no compute_reward(achieved_goal, "
-        "desired_goal, info) that takes a batch of goals and returns one reward each; HER "
-        "relabels with it (docs/your_goal_task.md)")  # fmt: skip
+        "desired_goal, info) that takes a batch of goals and returns one reward each; relabelling "
+        "and the critic's target range use it (docs/your_goal_task.md)")  # fmt: skip
 
 
 class HerReplayBuffer(ReplayBuffer):

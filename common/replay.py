@@ -148,7 +148,8 @@ def sample_replay(rb: ReplayBuffer, norm, reward_scale: float, batch_size: int,
 def buffer_refusal(buffer_size: int, num_envs: int, env_id: str) -> str | None:
     """Why a buffer of ``buffer_size`` transitions cannot serve ``env_id``, or None: replay
     samples finished episodes only, so each env's rows must hold its longest episode."""
-    rows, longest = buffer_size // num_envs, gym.spec(env_id.rpartition(":")[2]).max_episode_steps
+    task = env_id.rpartition(":")[2]  # gymnasium's "module:Task-v0" registers Task-v0
+    rows, longest = buffer_size // num_envs, gym.spec(task).max_episode_steps
     if longest and rows < longest:
         return (f"--buffer-size {buffer_size} keeps {rows} steps per env, less than one "
                 f"{env_id} episode ({longest} steps); enlarge it")  # fmt: skip

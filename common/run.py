@@ -124,8 +124,7 @@ def quiet_writer_thread(hook) -> None:
 def start_run(args) -> str:
     """A new run folder ``{log_dir}/{env_id}__{exp_name}__{seed}__{unix time}`` (a suffix keeps
     two runs started in the same second apart)."""
-    task = args.env_id.rpartition(":")[2]  # "module:Task-v0": Task-v0
-    run_name = f"{task}__{args.exp_name}__{args.seed}__{int(time.time())}"
+    run_name = f"{cli.task_name(args.env_id)}__{args.exp_name}__{args.seed}__{int(time.time())}"
     run_dir = os.path.join(args.log_dir, run_name)
     for suffix in range(1, 1000):
         try:

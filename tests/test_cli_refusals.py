@@ -5,6 +5,8 @@ In-process, plus a few runs as a user runs them (one line, no run folder)."""
 
 import typing
 
+import gymnasium as gym
+import numpy as np
 import pytest
 from conftest import assert_clean_error, parse, refused, run_dirs, run_script, scalars
 
@@ -266,14 +268,46 @@ def test_an_old_task_version_suggests_the_current_one(capsys, old, current):
     assert refused(capsys, ppo_kl, "--env-id", "FetchReach-v9").endswith("FetchReach-v4?")
 
 
-def test_a_task_of_a_users_module_is_imported_first_and_a_missing_one_refused(capsys):
-    """gymnasium's ``module:Task-v0``: the module registers the task (docs/your_goal_task.md)."""
-    args = parse(ipg_her, "--env-id", "tests.point_goal:PointGoal-v0")
-    assert args.env_id == "tests.point_goal:PointGoal-v0"
+def test_a_task_of_a_users_module_is_imported_first_and_a_missing_one_refused(tmp_path, capsys):
+    """gymnasium's ``module:Task-v0``: the module registers the task (docs/your_goal_task.md), so
+    it is imported before the id is looked up; in a fresh process only that import registers it."""
+    result = run_script("ipg_her.py", tmp_path, "--env-id", "tests.point_goal:PointGoal-v9")
+    assert_clean_error(result, "unknown --env-id 'tests.point_goal:PointGoal-v9'; "
+                               "did you mean tests.point_goal:PointGoal-v0?")  # fmt: skip
+    assert parse(ipg_her, "--env-id", "tests.point_goal:PointGoal-v0").env_id.endswith(
+        ":PointGoal-v0"
+    )
     line = refused(capsys, ipg_her, "--env-id", "no_such_module:PointGoal-v0")
     assert "cannot import no_such_module (ModuleNotFoundError" in line, line
-    line = refused(capsys, ipg_her, "--env-id", "tests.point_goal:PointGoal-v9")
-    assert line.endswith("did you mean tests.point_goal:PointGoal-v0?"), line
+
+
+def test_a_task_without_a_time_limit_or_with_goals_not_vectors_is_refused(capsys):
+    """Replay and evaluation wait for episodes to end; a goal must be a vector (goal_dim)."""
+    from tests.point_goal import PointGoal
+
+    class MatrixGoal(PointGoal):
+        def __init__(self):
+            super().__init__()
+            box = gym.spaces.Box(-1.0, 1.0, (2, 2), np.float64)
+            self.observation_space = gym.spaces.Dict(
+                {"observation": box, "achieved_goal": box, "desired_goal": box}
+            )
+
+    for env_id, entry, limit in (("PointGoalForever-v0", PointGoal, None),
+                                 ("MatrixGoal-v0", MatrixGoal, 50)):  # fmt: skip
+        if env_id not in gym.registry:
+            gym.register(env_id, entry_point=entry, max_episode_steps=limit)
+    line = refused(capsys, ipg_her, "--env-id", "PointGoalForever-v0")
+    assert line == ("error: PointGoalForever-v0 has no time limit: register it with "
+                    "max_episode_steps, so that its episodes end")  # fmt: skip
+    line = refused(capsys, ipg_her, "--env-id", "MatrixGoal-v0")
+    assert line.startswith("error: MatrixGoal-v0's observations are not supported"), line
+
+
+def test_capture_video_on_a_task_that_renders_no_frames_says_so(capsys):
+    line = refused(capsys, ipg_her, "--env-id", "tests.point_goal:PointGoal-v0", "--capture-video")
+    assert line == ("error: --capture-video: tests.point_goal:PointGoal-v0 renders no rgb_array "
+                    "frames (render_modes [])")  # fmt: skip
 
 
 # row 19: a task without goals trains without HER, and says so
@@ -282,4 +316,6 @@ def test_ipg_on_a_task_without_goals_says_hindsight_is_off(capsys, script):
     parse(IPG[script], "--env-id", "Hopper-v5")
     assert capsys.readouterr().out == "Hopper-v5 has no goals: hindsight relabelling (HER) is off\n"
     parse(IPG[script], "--env-id", "FetchReach-v4")
-    assert "HER" not in capsys.readouterr().out  # the recipe prints the defaults it takes
+    recipe = ("defaults for FetchReach-v4: --hidden 256, --target-std 1.0, --normalization paper, "
+              "--action-l2 1.0, --twin-critic\n")  # fmt: skip
+    assert capsys.readouterr().out == (recipe if script == "ipg_her_recipe" else "")

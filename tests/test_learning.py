@@ -10,8 +10,11 @@ instead of ag_{t+1}) still learns FetchReach, whose 5 cm tolerance forgives it, 
 tests/test_her.py instead.
 """
 
+import subprocess
+import sys
+
 import pytest
-from conftest import run_dirs, run_script, scalars
+from conftest import ROOT, run_dirs, run_script, scalars
 
 BUDGET = ["--total-timesteps", "3000", "--eval-freq", "0", "--eval-episodes", "20"]
 THRESHOLD = 0.8
@@ -34,9 +37,13 @@ def test_the_recipe_learns_a_goal_task_of_your_own(tmp_path):
     2,500 steps on seeds 1-4; with --no-her 0.02 on seeds 1-2 (docs/your_goal_task.md)."""
     result = run_script("ipg_her_recipe.py", tmp_path, "--env-id", "tests.point_goal:PointGoal-v0",
                         "--total-timesteps", "2500", "--eval-freq", "0", "--eval-episodes", "20",
-                        timeout=300)  # fmt: skip
+                        "--save-model", timeout=300)  # fmt: skip
     assert result.returncode == 0, result.stderr
     assert "defaults for tests.point_goal:PointGoal-v0: --hidden 256," in result.stdout
     (run_dir,) = run_dirs(tmp_path)
+    assert run_dir.name.startswith("PointGoal-v0__ipg_her_recipe__1__")  # the task, not its module
     success = scalars(run_dir)["eval/success_rate"][-1][1]
     assert success >= 0.9, f"eval success {success} < 0.9 after 2,500 steps"
+    evaluate = [sys.executable, "-m", "common.evaluate", str(run_dir), "--episodes", "2"]
+    replay = subprocess.run(evaluate, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert replay.returncode == 0 and "success" in replay.stdout, replay.stdout + replay.stderr
