@@ -8,12 +8,14 @@ Writes into ``--results-dir`` (default ``benchmarks/results/{suite}``): ``curves
 export of every run's curves, enough to redraw everything), ``results.md`` (the tables and how
 they were measured: among them one per task with the median and IQM of the final evaluation, the
 steps and training time to three levels, and the anchor, the peer to beat, where one is recorded:
-``ANCHORS`` below and ``benchmarks/results/against_sb3/results.json``) and PNG figures in the
-shape of the paper's Figures 3-5, the anchor drawn in. With ``--page``, the tables and the
+``ANCHORS`` below, ``benchmarks/results/against_sb3/results.json``, and the anchor's own runs in
+``benchmarks/results/anchors/``) and PNG figures in the shape of the paper's Figures 3-5, the
+anchor drawn in. With ``--page``, the tables and the
 figures go into that Markdown page of the docs site between its markers, and the figures into
 ``img/{suite}/`` beside the page (the site serves only files under ``docs/``).
 """
 
+import itertools
 import json
 import re
 import sys
@@ -63,6 +65,8 @@ TASK_LEVELS = {  # the per-task table's levels: evaluation success, or Hopper's 
 GOAL_LEVELS = ("eval/success_rate", (0.5, 0.7, 0.9))
 GOAL_TASKS = ("Fetch", "Hand", "PointMaze", "AntMaze")  # gymnasium-robotics' goal tasks
 SIDE_BY_SIDE = Path(__file__).parent / "results" / "against_sb3" / "results.json"
+ANCHOR_RUNS = Path(__file__).parent / "results" / "anchors"  # sb3_fetch.py's runs, one folder each
+SB3_NAMES = {"sac_her": "SAC+HER", "tqc_her": "TQC+HER", "ddpg_her": "DDPG+HER"}
 
 
 def reported_by_success(env_id: str) -> bool:
@@ -96,6 +100,8 @@ class Args:
     """also read runs not finished yet (a long run between sessions), marked with their step"""
     side_by_side: str = ""
     """against_sb3.py's results.json, FetchReach's anchor (default: the committed one)"""
+    anchor_runs: str = ""
+    """folder of the anchor's runs, a summary.json each (default: benchmarks/results/anchors)"""
 
 
 def read_run(run_dir: Path) -> dict:
@@ -382,7 +388,8 @@ class Peer:
     """Rows from outside the suite, measured by another script on one task: the anchor we must
     beat, or our own runs evaluated side by side with it. ``curves``: per seed, [[step, eval
     success], ...] (empty: not recorded); ``first``: per level, each seed's step of its first
-    evaluation there (a level missing: not recorded); ``seconds``: the same in training seconds."""
+    evaluation there (a level missing: not recorded); ``seconds``: the same in training seconds;
+    ``sps``: each seed's steps per second of training (empty: not recorded)."""
 
     label: str
     anchor: bool
@@ -390,6 +397,7 @@ class Peer:
     curves: list = field(default_factory=list)
     first: dict = field(default_factory=dict)
     seconds: dict = field(default_factory=dict)
+    sps: list = field(default_factory=list)
 
 
 def seed_ranges(seeds) -> str:
@@ -432,6 +440,32 @@ def load_peers(side_by_side: Path) -> dict:
         seeds = data.get("seeds", [])
         seeds = f"{len(runs)} ({seed_ranges(seeds)})" if len(seeds) == len(runs) else str(len(runs))
         peers["FetchReach-v4"].append(Peer(label, anchor, seeds, curves, first, seconds))
+    return peers
+
+
+def load_anchor_runs(folder: Path) -> dict:
+    """{env_id: [Peer]}: an anchor run here seed by seed by ``../shared/anchors/sb3_fetch.py``,
+    each run's ``summary.json`` in a folder of its own under ``folder``: each seed's evaluations
+    as its curve, its training seconds to each level (the wall time at that evaluation less every
+    evaluation's so far) and its steps per second of training."""
+    found = defaultdict(list)
+    for path in sorted(folder.glob("*/summary.json")):
+        run = json.loads(path.read_text())
+        found[run["algo"], run["env"]].append(run)
+    peers = defaultdict(list)
+    for (algo, env_id), runs in sorted(found.items()):
+        runs.sort(key=lambda r: r["seed"])
+        first, seconds = defaultdict(list), defaultdict(list)
+        for run, level in itertools.product(runs, GOAL_LEVELS[1]):
+            evals, training = run["evals"], np.cumsum([-e["eval_s"] for e in run["evals"]])
+            at = next((i for i, e in enumerate(evals) if e["eval_success"] >= level), None)
+            first[level].append(np.nan if at is None else evals[at]["step"])
+            seconds[level].append(np.nan if at is None else evals[at]["wall_s"] + training[at])
+        curves = [[[e["step"], e["eval_success"]] for e in r["evals"]] for r in runs]
+        seeds = f"{len(runs)} ({seed_ranges(r['seed'] for r in runs)})"
+        label = f"SB3 {SB3_NAMES.get(algo, algo)} (anchor; zoo settings)"
+        peers[env_id].append(Peer(label, True, seeds, curves, dict(first), dict(seconds),
+                                  [r["train_steps_per_s"] for r in runs]))  # fmt: skip
     return peers
 
 
@@ -575,7 +609,8 @@ def task_tables(groups: dict, peers: dict, seed: int) -> str:
                 recorded = level in peer.first
                 cells += reach_cells(peer.first[level], peer.seconds.get(level)) if recorded \
                     else ("n/a", "n/a")  # fmt: skip
-            cells += [eval_every(peer.curves) if peer.curves else "n/a", "n/a"]
+            cells += [eval_every(peer.curves) if peer.curves else "n/a",
+                      f"{np.mean(peer.sps):.0f}" if peer.sps else "n/a"]  # fmt: skip
             rows.append(f"| {peer.label} | " + " | ".join(cells) + " |")
         what = "evaluation success" if goal else "evaluation return"
         anchors = [p.label.split(" (")[0] for p in peers.get(env_id, []) if p.anchor and goal]
@@ -626,7 +661,7 @@ def task_tables_note(groups: dict, peers: dict) -> str:
         " *eval every*: steps between evaluations, the resolution of the steps columns. "
         "*steps/s*: as *SPS* in the first table."
     )
-    if any("SB3" in label for label in shown):
+    if any(label.startswith("SB3 DDPG+HER (anchor") for label in shown):
         text += (
             " *SB3 DDPG+HER (anchor)*: Stable-Baselines3's DDPG+HER with the HER paper's settings, "
             "run one seed after the other with IPG+HER, both evaluated alike, by "
@@ -635,7 +670,14 @@ def task_tables_note(groups: dict, peers: dict) -> str:
             "seconds (its evaluations' subtracted), recorded to 0.9 only. *IPG+HER side by side*: "
             "ours in that same run, its times recorded to 0.9 only."
         )
-    if any("TQC" in label for label in shown):
+    if any("zoo settings" in label for label in shown):
+        text += (
+            " *SB3 ... (anchor; zoo settings)*: Stable-Baselines3 with HER and rl-baselines3-zoo's "
+            "settings, run here on the same seeds and budget and evaluated alike, by "
+            "`../shared/anchors/sb3_fetch.py` (`benchmarks/results/anchors/`); its time is "
+            "training seconds (its evaluations' subtracted) and its *steps/s* likewise."
+        )
+    if any("TQC+HER zoo agent" in label for label in shown):
         text += (
             " *TQC+HER zoo agent (anchor)*: the first evaluations of rl-baselines3-zoo's "
             "published TQC+HER agent for the task (v1 environment, one env, one seed) at the "
@@ -911,6 +953,8 @@ def main(args: Args) -> int:
         (results / "curves.json").write_text(json.dumps(groups, separators=(",", ":")))
     rng = np.random.default_rng(args.seed)
     peers = load_peers(Path(args.side_by_side) if args.side_by_side else SIDE_BY_SIDE)
+    for env_id, anchors in load_anchor_runs(Path(args.anchor_runs or ANCHOR_RUNS)).items():
+        peers[env_id] += anchors
 
     if args.suite in ("paper", "quick"):  # quick has the paper's shape
         figures = draw_paper_figures(groups, figures_dir, rng, peers)

@@ -518,6 +518,45 @@ def test_the_committed_side_by_side_run_reads_as_it_recorded_itself():
         assert peers[name].seconds[0.9] == [r["train_s_to_0.9"] for r in recorded[key]]
 
 
+def test_an_anchor_run_here_gets_its_row_its_times_and_its_speed(tmp_path, monkeypatch):
+    """sb3_fetch.py's runs (a summary.json each) are the task's anchor: its row gives each seed's
+    last evaluation, the steps and training seconds (wall time less every evaluation so far) to
+    each level, and the mean steps/s; the task's figure draws it in."""
+    evals = {301: [(0, 0.0, 1.0, 1.0), (1000, 0.6, 5.0, 1.0), (2000, 1.0, 9.0, 1.0)],
+             302: [(0, 0.0, 2.0, 2.0), (1000, 0.2, 8.0, 2.0), (2000, 0.8, 14.0, 2.0)]}  # fmt: skip
+    for seed, records in evals.items():
+        folder = tmp_path / "anchors" / f"sac_her__HandReach-v3__seed{seed}"
+        folder.mkdir(parents=True)
+        summary = {"algo": "sac_her", "env": "HandReach-v3", "seed": seed,
+                   "train_steps_per_s": 100.0 * (seed - 300),
+                   "evals": [{"step": s, "eval_success": v, "wall_s": w, "eval_s": e}
+                             for s, v, w, e in records]}  # fmt: skip
+        (folder / "summary.json").write_text(json.dumps(summary))
+    (anchor,) = report.load_anchor_runs(tmp_path / "anchors")["HandReach-v3"]
+    # seed 301: 0.5 first at 1,000 (5 s less 2 s of evaluation), 0.7 and 0.9 at 2,000 (9 s - 3 s);
+    # seed 302: 0.5 and 0.7 at 2,000 (14 s - 6 s), 0.9 never
+    assert anchor.first[0.5] == [1000, 2000] and anchor.seconds[0.5] == [3.0, 8.0]
+    assert anchor.first[0.7] == [2000, 2000] and anchor.seconds[0.7] == [6.0, 8.0]
+    assert anchor.first[0.9][0] == 2000 and anchor.seconds[0.9][0] == 6.0
+    assert np.isnan(anchor.first[0.9][1]) and np.isnan(anchor.seconds[0.9][1])
+
+    drawn = []
+    monkeypatch.setattr(report, "draw_anchors", lambda ax, p, **kw: drawn.append(p))
+    write_run(tmp_path / "runs" / "goals", "ipg_her", "HandReach-v3", 301, [-50] * 3, [0.0, 1.0])
+    args = report.Args(suite="goals", runs_dir=str(tmp_path / "runs"),
+                       results_dir=str(tmp_path / "results"),
+                       anchor_runs=str(tmp_path / "anchors"))  # fmt: skip
+    assert report.main(args) == 0
+    assert [p.label for p in drawn[0]] == ["SB3 SAC+HER (anchor; zoo settings)"]
+    text = (tmp_path / "results" / "results.md").read_text()
+    row = next(line for line in text.splitlines() if line.startswith("| SB3 SAC+HER"))
+    # finals 1.0 and 0.8; 0.9: 2,000 and never, so the median is never
+    assert row.split(" | ")[1:] == ["2 (301-302)", "0.90 [0.80, 1.00]", "0.90 [0.80, 1.00]",
+                                    "1,500 (2/2)", "5.5 s", "2,000 (2/2)", "7.0 s",
+                                    "not reached (1/2)", "-", "1,000", "150 |"]  # fmt: skip
+    assert "anchor: SB3 SAC+HER)" in text and "(anchor; zoo settings)*" in text
+
+
 def test_every_goal_task_is_reported_by_its_success():
     """The goals suite's tasks, like Fetch's: evaluation success at 0.5 / 0.7 / 0.9."""
     for env_id in ("FetchPush-v4", "HandReach-v3", "HandManipulateBlockRotateZ-v1",
