@@ -11,6 +11,14 @@ are re-recorded only by a commit that changes the numbers on purpose, saying why
 
 The ``recipe_*`` values were recorded from ``ipg_her.py`` at 011d14e, before the hard-task
 recipe moved into its variant file ``ipg_her_recipe.py``, whose runs log them still.
+
+Contact physics can turn float32 rounding into another trajectory: on one CPU, the FetchSlide
+recipe run diverges from the recorded values within a few updates (its losses 3-30% off) while
+the same commit matches them elsewhere. ``reference_values_other_cpus.json`` holds such runs as
+recorded on such a CPU, from code that matched the main values on another; a run must match one
+of the recordings (a change to the code matches neither), recorded with
+
+    python tests/test_reference_values.py --record-other-cpu NAME ...
 """
 
 import json
@@ -20,6 +28,7 @@ import pytest
 from conftest import ROOT, run_dirs, run_script, scalars
 
 REFERENCE = ROOT / "tests" / "reference_values.json"
+OTHER_CPUS = ROOT / "tests" / "reference_values_other_cpus.json"  # {name: [recording, ...]}
 TIMED = ("charts/SPS",)  # wall-clock figures: never the same twice
 CONFIGS = {
     "ppo_kl_hopper": ("ppo_kl.py", "--env-id", "Hopper-v5", "--total-timesteps", "1536",
@@ -65,20 +74,38 @@ def logged(name: str, log_dir) -> dict:
     return {tag: values for tag, values in scalars(run_dir).items() if tag not in TIMED}
 
 
+def differences(got: dict, expected: dict) -> list[str]:
+    """The tags whose logged steps or values differ from a recording (values beyond float32
+    rounding: 1e-3 relative)."""
+    missing = [f"{tag} no longer logged" for tag in expected if tag not in got]
+    return missing or [
+        tag for tag in expected
+        if [s for s, _ in got[tag]] != [s for s, _ in expected[tag]]
+        or [v for _, v in got[tag]] != pytest.approx([v for _, v in expected[tag]], rel=1e-3,
+                                                     abs=1e-5)
+    ]  # fmt: skip
+
+
 @pytest.mark.parametrize("name", CONFIGS)
 def test_the_same_seed_and_flags_log_the_recorded_scalars(tmp_path, name):
     expected = json.loads(REFERENCE.read_text())[name]
+    others = json.loads(OTHER_CPUS.read_text()).get(name, []) if OTHER_CPUS.is_file() else []
     got = json.loads(json.dumps(logged(name, tmp_path)))  # the same float -> JSON round trip
-    assert set(expected) <= set(got), f"tags no longer logged: {set(expected) - set(got)}"
-    for tag in expected:  # steps exactly; values to float32 rounding, which CPUs' kernels vary
-        assert [s for s, _ in got[tag]] == [s for s, _ in expected[tag]], f"{name}: {tag} steps"
-        values = [v for _, v in expected[tag]]
-        assert [v for _, v in got[tag]] == pytest.approx(values, rel=1e-3, abs=1e-5), (
-            f"{name}: {tag} differs from the recorded values"
-        )
+    found = [differences(got, recording) for recording in (expected, *others)]
+    assert not all(found), f"{name}: differs from the recorded values in {found[0]}"
 
 
-if __name__ == "__main__" and sys.argv[1:2] == ["--record"]:
+if __name__ == "__main__" and sys.argv[1:2] == ["--record-other-cpu"]:
+    import tempfile
+    from pathlib import Path
+
+    values = json.loads(OTHER_CPUS.read_text()) if OTHER_CPUS.is_file() else {}
+    for name in sys.argv[2:]:
+        with tempfile.TemporaryDirectory() as d:
+            values.setdefault(name, []).append(logged(name, Path(d)))
+    OTHER_CPUS.write_text(json.dumps(values, indent=0, sort_keys=True) + "\n")
+    print(f"recorded {', '.join(sys.argv[2:])} into {OTHER_CPUS}")
+elif __name__ == "__main__" and sys.argv[1:2] == ["--record"]:
     import tempfile
     from pathlib import Path
 
