@@ -79,6 +79,9 @@ class Terminated(KeyboardInterrupt):
 
 
 def raise_terminated(signum, frame) -> NoReturn:
+    """The first SIGTERM stops the run; later ones are ignored, so they cannot cut its clean-up
+    short (kill -9 on benchmarks/run.py can send two: one per runner thread that dies)."""
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     raise Terminated()
 
 

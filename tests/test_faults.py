@@ -18,7 +18,7 @@ import pytest
 import torch
 from conftest import ROOT, assert_clean_error, run_dirs, run_script
 
-from common import checkpoint, evaluate
+from common import checkpoint, evaluate, run
 
 TINY = ("--env-id", "FetchReach-v4", "--total-timesteps", "200", "--eval-freq", "0",
         "--eval-episodes", "2")  # fmt: skip
@@ -131,6 +131,19 @@ def test_a_signal_right_after_the_run_folder_is_a_clean_stop(tmp_path, sig, code
     assert proc.returncode == code, err
     assert "Traceback" not in err and err.startswith("interrupted at step 0"), err
     assert out.strip().splitlines()[-1].startswith("stopped: 0 steps"), out
+
+
+def test_a_second_sigterm_cannot_cut_the_clean_up_short():
+    """kill -9 on benchmarks/run.py can send its running script SIGTERM twice."""
+    before = signal.signal(signal.SIGTERM, run.raise_terminated)
+    try:
+        with pytest.raises(run.Terminated):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(1)  # the handler runs here
+        assert signal.getsignal(signal.SIGTERM) == signal.SIG_IGN
+        os.kill(os.getpid(), signal.SIGTERM)  # the clean-up goes on
+    finally:
+        signal.signal(signal.SIGTERM, before)
 
 
 def test_kill_9_leaves_no_process_behind(tmp_path):

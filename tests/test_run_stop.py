@@ -24,6 +24,8 @@ if "--resume" in argv:
 
 
 def stop(signum, frame):
+    for s in (signal.SIGINT, signal.SIGTERM):  # as the real scripts: a second signal is ignored
+        signal.signal(s, signal.SIG_IGN)
     with open(log_dir / "signals", "a") as f:
         f.write(f"{signum}\\n")
     time.sleep(float(os.environ.get("FAKE_SAVE", "0.5")))  # saving
@@ -140,7 +142,9 @@ def test_kill_9_takes_the_runs_with_it_and_a_rerun_leaves_a_live_one_alone(tmp_p
         os.kill(proc.pid, signal.SIGKILL)
         proc.communicate(timeout=10)
         wait_for(lambda: (run_dir / "signals").exists(), timeout=5)
-        assert (run_dir / "signals").read_text() == f"{signal.SIGTERM}\n"
+        # SIGTERM, not SIGKILL; maybe twice: the kernel sends the death signal each time the
+        # script passes from a dying thread of the runner to another
+        assert set((run_dir / "signals").read_text().split()) == {str(signal.SIGTERM)}
         rerun = runner(tmp_path, "--only", "clean")
         out, err = rerun.communicate(timeout=15)
         assert alive(pid), "the rerun came after the script's clean stop: make FAKE_SAVE longer"
