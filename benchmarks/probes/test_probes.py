@@ -13,7 +13,13 @@ import torch
 ROOT = Path(__file__).resolve().parents[2]  # the project root: the probes run from there
 sys.path.insert(0, str(ROOT))
 import ipg_her_recipe  # noqa: E402  (slide_strikes reads the recipe's runs and critic)
-from benchmarks.probes import fetch_lifts, profile_phases, slide_strikes, update_speed  # noqa: E402
+from benchmarks.probes import (  # noqa: E402
+    fetch_lifts,
+    maze_paths,
+    profile_phases,
+    slide_strikes,
+    update_speed,
+)
 
 
 def test_update_speed_times_the_full_eager_update():
@@ -147,3 +153,22 @@ def test_slide_strikes_reads_far_slides_and_falls_from_the_replay_buffer_in_time
     rb = {"achieved_goal": goals, "next_achieved_goal": after}
     assert slide_strikes.replay_slides(rb, since=0) == (0.25, 0.25)
     assert slide_strikes.replay_slides(rb, since=0.5) == (0.5, 0.0)
+
+
+def test_maze_paths_counts_the_cells_around_a_wall_and_groups_episodes_by_them():
+    """In a 3x3 room split by a wall with one gap, the cell across the wall is 4 moves away (down,
+    across the gap, up), not 2; a walled-in goal is refused; the episodes group by path length."""
+    room = [[1, 1, 1, 1, 1], [1, 0, 1, 0, 1], [1, 0, 1, 0, 1], [1, 0, 0, 0, 1], [1, 1, 1, 1, 1]]
+    assert maze_paths.path_length(room, (1, 1), (1, 1)) == 0
+    assert maze_paths.path_length(room, (1, 1), (3, 1)) == 2
+    assert maze_paths.path_length(room, (1, 1), (1, 3)) == 6
+    assert maze_paths.path_length(room, (2, 1), (2, 3)) == 4
+    try:
+        maze_paths.path_length(room, (1, 1), (1, 2))
+        raise AssertionError("a goal in a wall has no path")
+    except ValueError:
+        pass
+    table = maze_paths.by_length([2, 6, 2, 2], [1, 0, 0, 1], [1, 1, 0, 1])
+    assert list(table) == [2, 6]
+    assert table[2][0] == 3 and np.isclose(table[2][1], 2 / 3) and np.isclose(table[2][2], 2 / 3)
+    assert table[6] == (1, 0.0, 1.0)
