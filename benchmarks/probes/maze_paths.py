@@ -6,8 +6,9 @@ Reads each run folder's ``resume.pt`` (its policy at the last resume point) and 
 episodes (reset seeds 1000, 1001, ...) with the mean action, as evaluation does. For each episode
 it takes the maze cells of the start and of the goal and counts the cells of the shortest path
 between them through the open cells (breadth-first, four neighbours). Prints, per path length,
-how many episodes, the share that ended at the goal (the evaluation's success), and the share
-that touched the goal at any step (a maze episode runs on after it is reached).
+how many episodes, the share that ended at the goal (the evaluation's success), the share that
+touched the goal at any step (a maze episode runs on after it is reached), and the median step
+of the first touch among those (what the discount gamma makes of the goal: gamma ** steps).
 """
 
 import argparse
@@ -39,29 +40,35 @@ def path_length(maze_map, start: tuple[int, int], goal: tuple[int, int]) -> int:
     raise ValueError(f"no path from {start} to {goal}")
 
 
-def by_length(lengths, ended, touched) -> dict[int, tuple[int, float, float]]:
-    """Per path length: episodes, the share that ended at the goal, the share that touched it."""
-    lengths, ended, touched = map(np.asarray, (lengths, ended, touched))
-    return {int(n): (int((lengths == n).sum()), ended[lengths == n].mean(),
-                     touched[lengths == n].mean()) for n in np.unique(lengths)}  # fmt: skip
+def by_length(lengths, ended, first) -> dict[int, tuple[int, float, float, float]]:
+    """Per path length: episodes, the share that ended at the goal, the share that touched it,
+    the median step of the first touch (``first``: that step, or -1 for never; nan if none)."""
+    lengths, ended, first = map(np.asarray, (lengths, ended, first))
+    table = {}
+    for n in np.unique(lengths):
+        f = first[lengths == n]
+        steps = np.median(f[f >= 0]) if (f >= 0).any() else np.nan
+        table[int(n)] = (len(f), ended[lengths == n].mean(), (f >= 0).mean(), steps)
+    return table
 
 
 def play(policy: Policy, seeds: list[int]):
     env = gym.make(policy.env_id)
     maze = env.unwrapped.maze
-    lengths, ended, touched = [], [], []
+    lengths, ended, first = [], [], []
     for seed in seeds:
         obs, _ = env.reset(seed=seed)
         cells = [tuple(maze.cell_xy_to_rowcol(obs[k])) for k in ("achieved_goal", "desired_goal")]
         lengths.append(path_length(maze.maze_map, *cells))
-        done, reached = False, False
+        done, step, reached = False, 0, -1
         while not done:
             obs, _, terminated, truncated, info = env.step(policy(obs))
-            done, reached = terminated or truncated, reached or bool(info["success"])
+            done, step = terminated or truncated, step + 1
+            reached = step if reached < 0 and info["success"] else reached
         ended.append(float(info["success"]))
-        touched.append(float(reached))
+        first.append(reached)
     env.close()
-    return lengths, ended, touched
+    return lengths, ended, first
 
 
 if __name__ == "__main__":
@@ -75,9 +82,11 @@ if __name__ == "__main__":
         saved = checkpoint._read(os.path.join(run, checkpoint.RESUME_FILE))
         policy = Policy({**saved, "last_eval_seeds": [], "normalizer_class": "InputNormalizer"},
                         saved["args"]["env_id"])  # fmt: skip
-        lengths, ended, touched = play(policy, seeds)
-        print(f"{os.path.basename(os.path.normpath(run))}: ended at the goal {np.mean(ended):.2f}, "
-              f"touched it {np.mean(touched):.2f}")  # fmt: skip
-        print("  cells on the path | episodes | ended at the goal | touched the goal")
-        for n, (count, end, touch) in by_length(lengths, ended, touched).items():
-            print(f"  {n:17d} | {count:8d} | {end:17.2f} | {touch:.2f}")
+        lengths, ended, first = play(policy, seeds)
+        print(
+            f"{os.path.basename(os.path.normpath(run))}: gamma {saved['args']['gamma']}, ended "
+            f"at the goal {np.mean(ended):.2f}, touched it {np.mean(np.array(first) >= 0):.2f}"
+        )
+        print("  cells on the path | episodes | ended at the goal | touched it | first touch")
+        for n, (count, end, touch, steps) in by_length(lengths, ended, first).items():
+            print(f"  {n:17d} | {count:8d} | {end:17.2f} | {touch:10.2f} | {steps:.0f}")

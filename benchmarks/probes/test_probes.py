@@ -168,7 +168,8 @@ def test_maze_paths_counts_the_cells_around_a_wall_and_groups_episodes_by_them()
         raise AssertionError("a goal in a wall has no path")
     except ValueError:
         pass
-    table = maze_paths.by_length([2, 6, 2, 2], [1, 0, 0, 1], [1, 1, 0, 1])
-    assert list(table) == [2, 6]
-    assert table[2][0] == 3 and np.isclose(table[2][1], 2 / 3) and np.isclose(table[2][2], 2 / 3)
-    assert table[6] == (1, 0.0, 1.0)
+    table = maze_paths.by_length([2, 6, 2, 2, 9], [1, 0, 0, 1, 0], [40, 300, -1, 60, -1])
+    assert list(table) == [2, 6, 9]
+    assert table[2][0] == 3 and np.allclose(table[2][1:], (2 / 3, 2 / 3, 50))  # never: not a step
+    assert table[6] == (1, 0.0, 1.0, 300.0)
+    assert table[9][:3] == (1, 0.0, 0.0) and np.isnan(table[9][3])
