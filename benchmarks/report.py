@@ -966,9 +966,10 @@ def main(args: Args) -> int:
             names = sorted(g.split("__")[0] for g in groups if g.endswith(f"__{env_id}"))
             fig, ax = plt.subplots(figsize=(7, 4))
             if reported_by_success(env_id):
+                per_episode = args.suite not in ("fetch", "goals")  # goals: not all 50-step
                 plot(ax, groups, names, env_id, "eval/success_rate", rng,
-                     per_episode=args.suite != "fetch", median=args.suite == "fetch")  # fmt: skip
-                draw_anchors(ax, peers.get(env_id, []), per_episode=args.suite != "fetch")
+                     per_episode=per_episode, median=args.suite == "fetch")  # fmt: skip
+                draw_anchors(ax, peers.get(env_id, []), per_episode=per_episode)
             else:
                 plot(ax, groups, names, env_id, "charts/episodic_return", rng, smooth=20)
             fig.tight_layout()

@@ -491,14 +491,14 @@ def test_the_anchor_is_drawn_in_and_given_its_row(tmp_path, monkeypatch):
     plt.close("all")
 
     drawn = []
-    monkeypatch.setattr(report, "draw_anchors", lambda ax, p, **kw: drawn.append(p))
+    monkeypatch.setattr(report, "draw_anchors", lambda ax, p, **kw: drawn.append((p, kw)))
     runs = tmp_path / "runs" / "quick"
     write_run(runs, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
     args = report.Args(suite="quick", runs_dir=str(tmp_path / "runs"),
                        results_dir=str(tmp_path / "results"),
                        side_by_side=str(tmp_path / "side.json"))  # fmt: skip
     assert report.main(args) == 0
-    assert drawn == [peers["FetchReach-v4"]]  # into the success figure
+    assert drawn == [(peers["FetchReach-v4"], {"per_episode": True})]  # the success figure
     text = (tmp_path / "results" / "results.md").read_text()
     row = next(line for line in text.splitlines() if line.startswith("| SB3 DDPG+HER"))
     # finals 1.0 and 0.9; 0.5 first at 1,000 / 500, 0.7 at 1,000 / 1,000, 0.9 at 1,000 / 1,500
@@ -541,13 +541,14 @@ def test_an_anchor_run_here_gets_its_row_its_times_and_its_speed(tmp_path, monke
     assert np.isnan(anchor.first[0.9][1]) and np.isnan(anchor.seconds[0.9][1])
 
     drawn = []
-    monkeypatch.setattr(report, "draw_anchors", lambda ax, p, **kw: drawn.append(p))
+    monkeypatch.setattr(report, "draw_anchors", lambda ax, p, **kw: drawn.append((p, kw)))
     write_run(tmp_path / "runs" / "goals", "ipg_her", "HandReach-v3", 301, [-50] * 3, [0.0, 1.0])
     args = report.Args(suite="goals", runs_dir=str(tmp_path / "runs"),
                        results_dir=str(tmp_path / "results"),
                        anchor_runs=str(tmp_path / "anchors"))  # fmt: skip
     assert report.main(args) == 0
-    assert [p.label for p in drawn[0]] == ["SB3 SAC+HER (anchor; zoo settings)"]
+    assert [p.label for p in drawn[0][0]] == ["SB3 SAC+HER (anchor; zoo settings)"]
+    assert drawn[0][1] == {"per_episode": False}  # steps: a maze's episode is 600, not 50
     text = (tmp_path / "results" / "results.md").read_text()
     row = next(line for line in text.splitlines() if line.startswith("| SB3 SAC+HER"))
     # finals 1.0 and 0.8; 0.9: 2,000 and never, so the median is never
