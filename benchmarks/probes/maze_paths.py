@@ -2,13 +2,13 @@
 
     python benchmarks/probes/maze_paths.py RUN_FOLDER [RUN_FOLDER ...] [--episodes 200]
 
-Reads each run folder's ``resume.pt`` (its policy at the last resume point) and plays fresh
-episodes (reset seeds 1000, 1001, ...) with the mean action, as evaluation does. For each episode
-it takes the maze cells of the start and of the goal and counts the cells of the shortest path
-between them through the open cells (breadth-first, four neighbours). Prints, per path length,
-how many episodes, the share that ended at the goal (the evaluation's success), the share that
-touched the goal at any step (a maze episode runs on after it is reached), and the median step
-of the first touch among those (what the discount gamma makes of the goal: gamma ** steps).
+Loads each run folder's policy (its model.pt or resume.pt, ``common.evaluate.load_policy``)
+and plays fresh episodes (reset seeds 1000, 1001, ...) with the mean action, as evaluation does.
+For each episode it takes the maze cells of the start and of the goal and counts the cells of the
+shortest path between them through the open cells (breadth-first, four neighbours). Prints, per
+path length, how many episodes, the share that ended at the goal (the evaluation's success), the
+share that touched the goal at any step (a maze episode runs on after it is reached), and the
+median step of the first touch among those (what the discount makes of the goal: gamma ** steps).
 """
 
 import argparse
@@ -21,8 +21,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, os.path.abspath(os.path.join(__file__, "../../..")))  # the project root
-from common import checkpoint  # noqa: E402
-from common.evaluate import Policy  # noqa: E402
+from common.evaluate import Policy, load_policy  # noqa: E402
 
 
 def path_length(maze_map, start: tuple[int, int], goal: tuple[int, int]) -> int:
@@ -79,12 +78,10 @@ if __name__ == "__main__":
     torch.set_num_threads(1)
     seeds = list(range(1000, 1000 + args.episodes))
     for run in args.runs:
-        saved = checkpoint._read(os.path.join(run, checkpoint.RESUME_FILE))
-        policy = Policy({**saved, "last_eval_seeds": [], "normalizer_class": "InputNormalizer"},
-                        saved["args"]["env_id"])  # fmt: skip
+        policy = load_policy(run)  # its model.pt or, without --save-model, its resume.pt
         lengths, ended, first = play(policy, seeds)
         print(
-            f"{os.path.basename(os.path.normpath(run))}: gamma {saved['args']['gamma']}, ended "
+            f"{os.path.basename(os.path.normpath(run))}: gamma {policy.args['gamma']}, ended "
             f"at the goal {np.mean(ended):.2f}, touched it {np.mean(np.array(first) >= 0):.2f}"
         )
         print("  cells on the path | episodes | ended at the goal | touched it | first touch")
