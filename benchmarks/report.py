@@ -104,9 +104,9 @@ class Args:
     """folder of the anchor's runs, a summary.json each (default: benchmarks/results/anchors)"""
 
 
-def read_run(run_dir: Path) -> dict:
-    """Every tag of TAGS of one run, as {tag: [[step, value], ...]}, plus its wall time. A resumed
-    run has an event file per attempt, read here in the order they were written: a resumed one
+def read_run(run_dir: Path, tags=TAGS) -> dict:
+    """Every tag of ``tags`` of one run, as {tag: [[step, value], ...]}, plus its wall time. A
+    resumed run has an event file per attempt, read here in the order they were written: one
     opens with a SessionLog START at its ``purge_step`` (common/run.py), and as in TensorBoard
     the points logged before it at that step or later (a killed attempt's) are dropped. The wall
     time sums the attempts' (the pauses not counted)."""
@@ -118,13 +118,13 @@ def read_run(run_dir: Path) -> dict:
     ]
     out, text, wall_time = {}, None, 0.0
     for events in sorted(filter(None, files), key=lambda events: events[0].wall_time):
-        times = [e.wall_time for e in events for v in e.summary.value if v.tag in TAGS]
+        times = [e.wall_time for e in events for v in e.summary.value if v.tag in tags]
         wall_time += max(times) - min(times) if times else 0.0
         for e in events:
             if e.session_log.status == SessionLog.START:  # a resumed attempt, from e.step on
                 out = {tag: [p for p in points if p[0] < e.step] for tag, points in out.items()}
             for v in e.summary.value:
-                if v.tag in TAGS:
+                if v.tag in tags:
                     out.setdefault(v.tag, []).append([e.step, round(v.simple_value, 5)])
                 elif v.tag == "hyperparameters/text_summary" and text is None:
                     text = v.tensor.string_val[0].decode()

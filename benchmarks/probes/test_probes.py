@@ -17,6 +17,7 @@ from benchmarks.probes import (  # noqa: E402
     fetch_lifts,
     maze_paths,
     profile_phases,
+    sigma_cycle,
     slide_strikes,
     update_speed,
 )
@@ -173,3 +174,16 @@ def test_maze_paths_counts_the_cells_around_a_wall_and_groups_episodes_by_them()
     assert table[2][0] == 3 and np.allclose(table[2][1:], (2 / 3, 2 / 3, 50))  # never: not a step
     assert table[6] == (1, 0.0, 1.0, 300.0)
     assert table[9][:3] == (1, 0.0, 0.0) and np.isnan(table[9][3])
+
+
+def test_sigma_cycle_bins_a_run_finds_the_entropy_troughs_and_the_evaluations_there():
+    """Bins hold the steps (end - width, end] from the start on; the troughs of an entropy that
+    cycles every 10 bins are its minima, a flat entropy has none; the evaluations split by them."""
+    points = [[5, 1.0], [10, 3.0], [15, 5.0], [31, 7.0]]
+    assert sigma_cycle.binned(points, 10) == {10: 2.0, 20: 5.0, 40: 7.0}
+    assert sigma_cycle.binned(points, 10, start=10) == {20: 5.0, 40: 7.0}
+    cycle = {100 * (i + 1): float(np.cos(2 * np.pi * i / 10)) for i in range(30)}
+    assert sigma_cycle.troughs(cycle) == [600, 1600, 2600]  # i = 5, 15, 25: cos = -1
+    assert sigma_cycle.troughs(dict.fromkeys(range(100, 1100, 100), 28.4)) == []
+    evals = {10: 0.5, 20: 0.1, 30: 0.2, 40: 0.6}
+    assert sigma_cycle.at_troughs(evals, [20], 10) == ([0.1, 0.2], [0.5, 0.6])

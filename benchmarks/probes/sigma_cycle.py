@@ -1,0 +1,75 @@
+"""Does the sigma rule cycle, and do a run's evaluation falls come at the entropy's troughs?
+
+    python benchmarks/probes/sigma_cycle.py RUN_FOLDER [RUN_FOLDER ...] [--bin 10000] [--start 0]
+
+Reads each run folder's event files (``benchmarks/report.py``'s ``read_run``, resumed attempts
+included) and prints, per bin of ``--bin`` environment steps, the mean of: the evaluation's
+success, the policy's entropy, the sigma rule's alpha, the KL penalty's beta, the KL per update,
+the critic's Q on replay batches and the training success. A trough is a bin whose entropy is
+the lowest within two bins either side and below the run's median; the last line sets the
+evaluations of the troughs' bins and of the bins just after them against all the others.
+"""
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, os.path.abspath(os.path.join(__file__, "../../..")))  # the project root
+from benchmarks.report import read_run  # noqa: E402
+
+COLUMNS = {"eval": "eval/success_rate", "entropy": "charts/policy_entropy", "alpha": "ipg/alpha",
+           "beta": "losses/beta", "KL": "losses/approx_kl", "Q": "losses/q_values",
+           "train": "charts/success_rate"}  # fmt: skip
+
+
+def binned(points, width: int, start: int = 0) -> dict[int, float]:
+    """{bin's last step: mean value} over the bins (end - width, end] from ``start`` on."""
+    sums = {}
+    for step, value in points:
+        if step > start:
+            end = start + width * int(np.ceil((step - start) / width))
+            sums.setdefault(end, []).append(value)
+    return {end: float(np.mean(values)) for end, values in sorted(sums.items())}
+
+
+def troughs(entropy: dict[int, float]) -> list[int]:
+    """The bins whose entropy is the lowest within two bins either side and below the median."""
+    ends, h = list(entropy), np.array(list(entropy.values()))
+    return [ends[i] for i in range(len(h))
+            if h[i] < np.median(h) and h[i] == h[max(i - 2, 0) : i + 3].min()]  # fmt: skip
+
+
+def at_troughs(evals: dict[int, float], low: list[int], width: int) -> tuple[list, list]:
+    """The evaluations of the troughs' bins and of the bins just after them; all the others."""
+    near = set(low) | {end + width for end in low}
+    return [e for end, e in evals.items() if end in near], [
+        e for end, e in evals.items() if end not in near
+    ]
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+")
+    parser.add_argument("--bin", type=int, default=10_000, help="environment steps per bin")
+    parser.add_argument("--start", type=int, default=0, help="leave out the steps before this")
+    args = parser.parse_args()
+    for run in args.runs:
+        folder = max(Path(run).glob("**/events.out.tfevents.*")).parent
+        scalars = read_run(folder, tags=tuple(COLUMNS.values()))
+        table = {name: binned(scalars.get(tag, []), args.bin, args.start)
+                 for name, tag in COLUMNS.items()}  # fmt: skip
+        print(f"{os.path.basename(os.path.normpath(run))}\n  step  " + "  ".join(
+            f"{name:>7}" for name in COLUMNS))  # fmt: skip
+        for end in table["entropy"]:
+            row = (
+                f"{table[name][end]:7.3g}" if end in table[name] else "      -" for name in COLUMNS
+            )
+            print(f"  {end // 1000:4d}k " + "  ".join(row))
+        low = troughs(table["entropy"])
+        near, rest = at_troughs(table["eval"], low, args.bin)
+        print(f"  troughs at {', '.join(f'{end // 1000}k' for end in low)}")
+        print(f"  evaluation: mean {np.mean(near):.2f} in the {len(near)} bins at or just after a "
+              f"trough, {np.mean(rest):.2f} in the {len(rest)} others")  # fmt: skip
