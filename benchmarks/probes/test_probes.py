@@ -187,3 +187,8 @@ def test_sigma_cycle_bins_a_run_finds_the_entropy_troughs_and_the_evaluations_th
     assert sigma_cycle.troughs(dict.fromkeys(range(100, 1100, 100), 28.4)) == []
     evals = {10: 0.5, 20: 0.1, 30: 0.2, 40: 0.6}
     assert sigma_cycle.at_troughs(evals, [20], 10) == ([0.1, 0.2], [0.5, 0.6])
+    binned = {10_000 * i: float(i % 7) for i in range(1, 31)}  # 0-6 again and again
+    assert sigma_cycle.ranges(binned) == {100_000: (0.0, 6.0), 200_000: (0.0, 6.0),
+                                          300_000: (0.0, 6.0)}  # fmt: skip
+    assert sigma_cycle.ranges({50_000: 3.0, 100_000: 1.0, 110_000: 5.0}) == {
+        100_000: (1.0, 3.0), 200_000: (5.0, 5.0)}  # fmt: skip
