@@ -8,6 +8,7 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+import pytest
 import torch
 
 ROOT = Path(__file__).resolve().parents[2]  # the project root: the probes run from there
@@ -19,6 +20,7 @@ from benchmarks.probes import (  # noqa: E402
     profile_phases,
     sigma_cycle,
     slide_strikes,
+    split_clip,
     update_speed,
 )
 
@@ -192,3 +194,23 @@ def test_sigma_cycle_bins_a_run_finds_the_entropy_troughs_and_the_evaluations_th
                                           300_000: (0.0, 6.0)}  # fmt: skip
     assert sigma_cycle.ranges({50_000: 3.0, 100_000: 1.0, 110_000: 5.0}) == {
         100_000: (1.0, 3.0), 200_000: (5.0, 5.0)}  # fmt: skip
+
+
+def test_split_clip_scales_the_mean_network_with_log_sigma_or_on_its_own():
+    """The policy's list (a mean network, then log sigma of shape (1, d)) is told from V's; a joint
+    clip scales both by one factor, log sigma's big gradient shrinking the mean network's; split,
+    each is clipped to the bound on its own."""
+    mean_net, v_net = torch.nn.Linear(3, 2), torch.nn.Linear(3, 1)
+    assert split_clip.is_policy([*mean_net.parameters(), torch.zeros(1, 2)])
+    assert not split_clip.is_policy(list(v_net.parameters()))
+    assert np.allclose(split_clip.clip_factor(3.0, 4.0, 0.5), (0.1, 0.64))
+    assert split_clip.clip_factor(0.3, 0.4, 0.5)[0] == pytest.approx(1.0, abs=1e-5)
+    for split, mean_after in ((False, 3.0 * 0.5 / np.hypot(3.0, 40.0)), (True, 0.5)):
+        log_std = torch.zeros(1, 2, requires_grad=True)
+        params = [*mean_net.parameters(), log_std]
+        for p, g in zip(params, (3.0, 0.0, 40.0), strict=True):  # norms: weight, bias, sigma
+            p.grad = torch.zeros_like(p)
+            p.grad.view(-1)[0] = g
+        split_clip.clip(split)(params, 0.5)
+        assert params[0].grad.norm().item() == pytest.approx(mean_after, rel=1e-4)
+        assert log_std.grad.norm().item() == pytest.approx(0.5 if split else 40 * mean_after / 3)
