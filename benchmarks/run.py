@@ -31,7 +31,7 @@ The suites (``SUITES``: one row per variant x task, each on its seeds; ``--seeds
 - ``goals``: the recipe's defaults, no flag but the budget, on goal tasks none of its settings
   was chosen on: the Shadow hand (HandReach, HandManipulateBlockRotateZ) and PointMaze_Medium;
   on PointMaze also with ``--gamma 0.995``, the setting it lacks (chosen on seeds 11-12), and on
-  HandReach with ``--target-std 0.3`` (chosen on seed 11).
+  HandReach with ``--target-std 0.3``, summed and one rule per joint (chosen on seed 11).
 """
 
 import ctypes
@@ -258,6 +258,8 @@ SUITES: dict[str, tuple[tuple[int, ...], list[tuple]]] = {
         ("ipg_her_300k", RECIPE, "HandReach-v3", ("--total-timesteps", "300000", *FETCH_EVERY)),
         ("ipg_her_300k_std03", RECIPE, "HandReach-v3",  # chosen on seed 11
          ("--total-timesteps", "300000", "--target-std", "0.3", *FETCH_EVERY)),
+        ("ipg_her_300k_std03x20", RECIPE, "HandReach-v3",  # one rule per joint, chosen on seed 11
+         ("--total-timesteps", "300000", "--target-std", *["0.3"] * 20, *FETCH_EVERY)),
         ("ipg_her_1000k", RECIPE, "HandManipulateBlockRotateZ-v1",
          ("--total-timesteps", "1000000", *FETCH_EVERY)),
         ("ipg_her_300k", RECIPE, "PointMaze_Medium-v3",

@@ -103,24 +103,30 @@ def test_a_dry_run_piped_into_head_ends_quietly():
 def test_the_goals_suite_runs_the_recipes_defaults_with_no_flag_but_the_budget():
     """Goal tasks no setting was chosen on, three fresh seeds each, no flag that could tune: the
     budget, evaluation every 10,000 steps on 50 episodes, resume points. Each task takes the
-    RECIPE: none has a row of its own. The two exceptions are named, each beside its task's
-    defaults: PointMaze with the discount it lacks, HandReach with a narrower sigma target."""
+    RECIPE: none has a row of its own. The exceptions are named, each beside its task's
+    defaults: PointMaze with the discount it lacks, HandReach with a narrower sigma target (summed
+    and one rule per joint)."""
     import ipg_her_recipe as recipe
 
     runs = run.suite_runs("goals")
-    budgets = {(r.name, r.env_id, r.seed): dict(zip(r.flags[::2], r.flags[1::2], strict=True))
+    flag = re.compile(r"(--\S+) ((?:[^-\s]\S* ?)+)")  # a flag and its values
+    budgets = {(r.name, r.env_id, r.seed): dict(flag.findall(" ".join(r.flags)))
                for r in runs if r.script == "ipg_her_recipe.py"}  # fmt: skip
-    assert len(budgets) == len(runs) == 15
+    assert len(budgets) == len(runs) == 18
     assert {seed for *_, seed in budgets} == {301, 302, 303}
     steps = {"HandReach-v3": "300000", "HandManipulateBlockRotateZ-v1": "1000000",
              "PointMaze_Medium-v3": "300000"}  # fmt: skip
+    named = {
+        ("ipg_her_300k_gamma0995", "PointMaze_Medium-v3"): {"--gamma": "0.995"},
+        ("ipg_her_300k_std03", "HandReach-v3"): {"--target-std": "0.3"},
+        ("ipg_her_300k_std03x20", "HandReach-v3"): {"--target-std": " ".join(["0.3"] * 20)},
+    }
     for (name, env_id, _), flags in budgets.items():
-        extra = {"ipg_her_300k_gamma0995": {"--gamma": "0.995"},
-                 "ipg_her_300k_std03": {"--target-std": "0.3"}}.get(name, {})  # fmt: skip
-        assert not extra or (name, env_id) in {("ipg_her_300k_gamma0995", "PointMaze_Medium-v3"),
-                                               ("ipg_her_300k_std03", "HandReach-v3")}  # fmt: skip
-        assert flags == {"--total-timesteps": steps[env_id], "--eval-freq": "10000",
-                         "--eval-episodes": "50", "--resume-freq": "50000", **extra}  # fmt: skip
+        extra = named.get((name, env_id), {})
+        assert extra or name in ("ipg_her_300k", "ipg_her_1000k")
+        assert {k: v.strip() for k, v in flags.items()} == {
+            "--total-timesteps": steps[env_id], "--eval-freq": "10000", "--eval-episodes": "50",
+            "--resume-freq": "50000", **extra}  # fmt: skip
         assert recipe.task_defaults(env_id) == recipe.RECIPE
 
 
