@@ -96,6 +96,9 @@ class Args:
     """also write table and figures into this page (docs/results.md), between its suite markers"""
     keep_export: bool = False
     """also keep the runs in the suite's curves.json that the run folders lack (other machines')"""
+    replace_export: bool = False
+    """replace the suite's curves.json even where it holds runs the run folders lack (without
+    it, or --keep-export, the report refuses and leaves the export as it is)"""
     include_unfinished: bool = False
     """also read runs not finished yet (a long run between sessions), marked with their step"""
     side_by_side: str = ""
@@ -104,18 +107,44 @@ class Args:
     """folder of the anchor's runs, a summary.json each (default: benchmarks/results/anchors)"""
 
 
+class CorruptEventFile(ValueError):
+    """An event file with a record whose checksum fails: damaged, not to be read as data."""
+
+
+def read_events(path: Path) -> list:
+    """The events of one event file, a TFRecord file: per record its length (8 bytes), that
+    length's masked CRC-32C, the event and the event's CRC. TensorBoard's loader stops silently at
+    a damaged record; here a failed checksum raises CorruptEventFile, and a record cut short at
+    the end (its writer killed mid-write) ends the file with a warning naming it."""
+    from tensorboard.compat.proto.event_pb2 import Event
+    from tensorboard.compat.tensorflow_stub.pywrap_tensorflow import masked_crc32c
+
+    data, pos, events = path.read_bytes(), 0, []
+    while pos < len(data):
+        length, body = data[pos : pos + 8], pos + 12
+        end = body + int.from_bytes(length, "little")
+        for checked, crc in ((length, data[pos + 8 : body]), (data[body:end], data[end : end + 4])):
+            if len(crc) < 4:
+                print(f"warning: {path}: its last record is cut short; read the {len(events)} "
+                      "events before it", file=sys.stderr)  # fmt: skip
+                return events
+            if masked_crc32c(checked) != int.from_bytes(crc, "little"):
+                raise CorruptEventFile(f"{path}: the record at byte {pos} fails its checksum")
+        events.append(Event.FromString(data[body:end]))
+        pos = end + 4
+    return events
+
+
 def read_run(run_dir: Path, tags=TAGS) -> dict:
     """Every tag of ``tags`` of one run, as {tag: [[step, value], ...]}, plus its wall time. A
     resumed run has an event file per attempt, read here in the order they were written: one
     opens with a SessionLog START at its ``purge_step`` (common/run.py), and as in TensorBoard
     the points logged before it at that step or later (a killed attempt's) are dropped. The wall
-    time sums the attempts' (the pauses not counted)."""
-    from tensorboard.backend.event_processing.event_file_loader import LegacyEventFileLoader
+    time sums the attempts' (the pauses not counted). A damaged event file raises
+    CorruptEventFile."""
     from tensorboard.compat.proto.event_pb2 import SessionLog
 
-    files = [
-        list(LegacyEventFileLoader(str(f)).Load()) for f in run_dir.glob("events.out.tfevents.*")
-    ]
+    files = [read_events(f) for f in run_dir.glob("events.out.tfevents.*")]
     out, text, wall_time = {}, None, 0.0
     for events in sorted(filter(None, files), key=lambda events: events[0].wall_time):
         times = [e.wall_time for e in events for v in e.summary.value if v.tag in tags]
@@ -152,7 +181,8 @@ def collect(runs_dir: Path, window: int, include_unfinished: bool = False) -> di
     plotting: the export stays small and still reproduces the table exactly. Runs that did not
     finish are left out, or with ``include_unfinished``, those that were stopped (no exit code,
     or a signal's) with a resume point to go on from are kept with ``unfinished_at``, the last
-    step they logged; a run that failed is never read."""
+    step they logged; a run that failed is never read, nor one whose event files are damaged or
+    hold no scalars (a warning names it)."""
     groups = defaultdict(dict)
     for folder in sorted(runs_dir.iterdir()):
         code = folder / "exit_code"
@@ -164,13 +194,16 @@ def collect(runs_dir: Path, window: int, include_unfinished: bool = False) -> di
             continue
         name, env_id, seed = folder.name.split("__")
         event_dirs = [p for p in folder.iterdir() if p.is_dir()]
-        if not event_dirs:
+        try:
+            run = read_run(max(event_dirs)) if event_dirs else {}
+        except CorruptEventFile as error:
+            print(f"warning: {error}: the file is damaged; run {folder} left out", file=sys.stderr)
             continue
-        run = read_run(max(event_dirs))
+        steps = [points[-1][0] for tag, points in run.items() if tag in TAGS and points]
+        if not steps:
+            print(f"warning: {folder}: no scalars in its event files; left out", file=sys.stderr)
+            continue
         if not done:
-            steps = [points[-1][0] for tag, points in run.items() if tag in TAGS and points]
-            if not steps:
-                continue
             run["unfinished_at"] = max(steps)
         run["final"] = final_performance(run, bool(run.get("charts/success_rate")), window)
         run["reach"] = steps_to_threshold(run, env_id, window)
@@ -908,39 +941,47 @@ def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> 
     return figures
 
 
+def refuse(message: str) -> int:
+    """Bad input or a result at risk: one line on stderr, exit code 2, nothing written."""
+    print(f"error: {message}", file=sys.stderr)
+    return 2
+
+
 def main(args: Args) -> int:
     # a bad --page is caught before anything is read or written
     page = Path(args.page)
     start, end = f"<!-- results:{args.suite}:start -->", f"<!-- results:{args.suite}:end -->"
     if args.page and not page.is_file():
-        print(f"error: --page {page}: no such file; name an existing Markdown page holding the "
-              f"markers {start} and {end}, or leave out --page", file=sys.stderr)  # fmt: skip
-        return 2
+        return refuse(f"--page {page}: no such file; name an existing Markdown page holding the "
+                      f"markers {start} and {end}, or leave out --page")  # fmt: skip
     if args.page and not page.read_text().count(start) == page.read_text().count(end) == 1:
-        print(f"error: --page {page} needs the markers {start} and {end}, once each, "
-              "around the place to write; add them", file=sys.stderr)  # fmt: skip
-        return 2
+        return refuse(f"--page {page} needs the markers {start} and {end}, once each, around "
+                      "the place to write; add them")  # fmt: skip
     results = Path(args.results_dir or f"benchmarks/results/{args.suite}")
-    results.mkdir(parents=True, exist_ok=True)
-    figures_dir = page.parent / "img" / args.suite if args.page else results  # the site's files
-    figures_dir.mkdir(parents=True, exist_ok=True)
+    export = results / "curves.json"
+    try:
+        old = json.loads(export.read_text()) if export.is_file() else {}
+    except ValueError as error:  # a damaged export: restored or replaced, never merged
+        if args.from_export or not args.replace_export:
+            return refuse(f"{export} is not a readable export ({error}); restore it (git "
+                          "checkout) or, reading the runs, pass --replace-export")  # fmt: skip
+        old = {}
     if args.from_export:
-        if not (results / "curves.json").is_file():
-            print(f"error: no export {results / 'curves.json'}; run report.py without "
-                  "--from-export on the event files first", file=sys.stderr)  # fmt: skip
-            return 2
-        groups = json.loads((results / "curves.json").read_text())
+        if not old:
+            return refuse(f"no runs in {export}; run report.py without --from-export on the "
+                          "event files first")  # fmt: skip
+        groups = old
     else:
         runs_dir = Path(args.runs_dir) / args.suite
         if not runs_dir.is_dir():
-            print(
-                f"error: no runs in {runs_dir}; run benchmarks/run.py --suite {args.suite} first",
-                file=sys.stderr,
-            )
-            return 2
+            return refuse(f"no runs in {runs_dir}; run benchmarks/run.py --suite {args.suite} "
+                          "first")  # fmt: skip
         groups = collect(runs_dir, args.window, args.include_unfinished)
-        if args.keep_export and (results / "curves.json").is_file():  # seed by seed
-            for group, runs in json.loads((results / "curves.json").read_text()).items():
+        if not groups:
+            return refuse(f"no finished run in {runs_dir}, nothing to report; {results} is left "
+                          "as it is")  # fmt: skip
+        if args.keep_export:  # seed by seed
+            for group, runs in old.items():
                 for seed, run in runs.items():
                     if seed not in groups.get(group, {}) and "measured_on" not in run:
                         groups[group][seed] = run | {"kept": True}
@@ -950,7 +991,19 @@ def main(args: Args) -> int:
                 if group not in groups:
                     groups[group] = {seed: run | {"measured_on": args.merge_label}
                                      for seed, run in runs.items()}  # fmt: skip
-        (results / "curves.json").write_text(json.dumps(groups, separators=(",", ":")))
+        lost = [
+            f"{g} seed {s}" for g, runs in old.items() for s in runs if s not in groups.get(g, {})
+        ]
+        if lost and not args.replace_export:  # a committed result is never lost by accident
+            n = sum(map(len, old.values()))
+            return refuse(f"{len(lost)} of the {n} runs in {export} are not in {runs_dir} "
+                          f"({lost[0]}, ...), so the export is left as it is: --keep-export "
+                          "keeps them, --replace-export drops them")  # fmt: skip
+    results.mkdir(parents=True, exist_ok=True)
+    figures_dir = page.parent / "img" / args.suite if args.page else results  # the site's files
+    figures_dir.mkdir(parents=True, exist_ok=True)
+    if not args.from_export:
+        export.write_text(json.dumps(groups, separators=(",", ":")))
     rng = np.random.default_rng(args.seed)
     peers = load_peers(Path(args.side_by_side) if args.side_by_side else SIDE_BY_SIDE)
     for env_id, anchors in load_anchor_runs(Path(args.anchor_runs or ANCHOR_RUNS)).items():

@@ -191,7 +191,7 @@ def test_rows_merged_from_an_earlier_export_are_marked(tmp_path):
 def test_keep_export_adds_new_seeds_to_the_runs_of_an_earlier_machine(tmp_path):
     """--keep-export: seeds whose run folders are gone (a new machine) are read from the suite's
     own curves.json, seed by seed and named in the note; a seed with a run folder is read from
-    its events; without the flag the export is replaced."""
+    its events; --replace-export replaces the export with the run folders' runs."""
     import shutil
 
     runs, results = tmp_path / "runs" / "mixing", tmp_path / "results"
@@ -206,7 +206,7 @@ def test_keep_export_adds_new_seeds_to_the_runs_of_an_earlier_machine(tmp_path):
     text = (results / "results.md").read_text()
     assert "| Hopper-v5 | algo | 3 | 500 ± 400 |" in text  # seeds 1 (100), 2 (500), 3 (900)
     assert "1 of the 3 runs were read from this suite's own earlier export" in text
-    assert report.main(report.Args(**args)) == 0  # without the flag: the run folders only
+    assert report.main(report.Args(**args, replace_export=True)) == 0  # the run folders only
     assert "| Hopper-v5 | algo | 2 | 700 ± 283 |" in (results / "results.md").read_text()
 
 
@@ -581,3 +581,76 @@ def test_the_paired_comparison_matches_its_definition():
     assert r["difference"].tolist() == [-2.0, -1.0, -3.0, -4.0] and r["mean"] == -2.5
     assert -4.0 <= r["interval"][0] < -2.5 < r["interval"][1] <= -1.0
     assert r["p"] == 2 / 16
+
+
+def snapshot(folder) -> dict:
+    """Every file under ``folder``: its bytes and modification time."""
+    return {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in folder.rglob("*") if p.is_file()}
+
+
+def test_a_report_with_no_runs_refuses_and_leaves_the_export_as_it_is(tmp_path):
+    """The issue's command, ``--runs-dir EMPTY`` (a suite folder with no run in it): one error
+    line, a non-zero exit, and the export, its results.md and its figures untouched."""
+    write_run(tmp_path / "runs" / "paper", "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
+    results = tmp_path / "results"
+    args = dict(suite="paper", runs_dir=str(tmp_path / "runs"), results_dir=str(results))
+    assert report.main(report.Args(**args)) == 0
+    before = snapshot(results)
+    assert results / "curves.json" in before and results / "results.md" in before
+    (tmp_path / "empty" / "paper").mkdir(parents=True)
+    cmd = [sys.executable, "benchmarks/report.py", "--suite", "paper", "--runs-dir",
+           str(tmp_path / "empty"), "--results-dir", str(results)]  # fmt: skip
+    result = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert_clean_error(result, "no finished run", str(tmp_path / "empty" / "paper"))
+    assert snapshot(results) == before
+
+
+def test_a_report_with_fewer_runs_than_its_export_refuses_unless_told_to_replace(tmp_path, capsys):
+    """Run folders that lack a run of the export (another machine's, a folder removed) would
+    lose it: the report refuses and names the way out; --replace-export replaces the export."""
+    import shutil
+
+    runs, results = tmp_path / "runs" / "paper", tmp_path / "results"
+    for seed in (1, 2):
+        write_run(runs, "ipg_her", "FetchReach-v4", seed, [-50] * 3, [0.0, 1.0])
+    args = dict(suite="paper", runs_dir=str(tmp_path / "runs"), results_dir=str(results))
+    assert report.main(report.Args(**args)) == 0
+    before = snapshot(results)
+    shutil.rmtree(runs / "ipg_her__FetchReach-v4__seed2")
+    capsys.readouterr()
+    assert report.main(report.Args(**args)) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "1 of the 2 runs" in errors[0], errors
+    assert "ipg_her__FetchReach-v4 seed 2" in errors[0] and "--replace-export" in errors[0]
+    assert snapshot(results) == before
+    assert report.main(report.Args(**args, replace_export=True)) == 0
+    export = json.loads((results / "curves.json").read_text())
+    assert list(export["ipg_her__FetchReach-v4"]) == ["1"]
+
+
+@pytest.mark.parametrize("damage", ["length", "event", "cut"])
+def test_a_damaged_event_file_is_named_in_a_warning(tmp_path, capsys, damage):
+    """A bit flipped in a record's length or in its event fails the record's checksum: the run
+    is left out, a warning naming its file; a file cut short mid-record (its writer killed) is
+    read up to there, a warning naming it. Never a row of NaN or of part of a run, silently."""
+    runs = tmp_path / "runs" / "test"
+    for seed in (1, 2):
+        write_run(runs, "algo", "Hopper-v5", seed, [100.0 * seed] * 40)
+    (events,) = (runs / "algo__Hopper-v5__seed2").rglob("events.out.tfevents.*")
+    data, starts = bytearray(events.read_bytes()), [0]  # a record: length, CRC, event, CRC
+    while starts[-1] < len(data):
+        starts.append(starts[-1] + 16 + int.from_bytes(data[starts[-1] : starts[-1] + 8], "little"))
+    record = starts[len(starts) // 2]  # a record in the middle: a training return's
+    if damage == "cut":
+        data = data[: record + 14]
+    else:
+        data[record if damage == "length" else record + 14] ^= 0x04
+    events.write_bytes(bytes(data))
+    capsys.readouterr()
+    groups = report.collect(runs, WINDOW)["algo__Hopper-v5"]
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warn")]
+    assert len(warnings) == 1 and str(events) in warnings[0], warnings
+    if damage == "cut":
+        assert 0 < len(groups["2"]["charts/episodic_return"]) < 40 and groups["2"]["final"] == 200
+    else:
+        assert list(groups) == ["1"] and "left out" in warnings[0]
