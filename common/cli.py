@@ -218,48 +218,93 @@ def current_version(env_id: str) -> str | None:
 
 
 def check_task(env_id: str, num_envs: int = 1) -> bool:
-    """The task is registered (by its module, imported first, for an id ``module:Task-v0``), its
-    dependencies are installed, ``num_envs`` copies of its simulator fit in the free memory, it
-    has a time limit, its actions are continuous and its observations a vector or a goal Dict
-    (``GOAL_KEYS``, each a vector). Returns whether it is a goal task."""
+    """``task_refusal``'s checks, failing with its line. Returns whether it is a goal task."""
+    refuse(task_refusal(env_id, num_envs))
+    return goal_task(env_id)
+
+
+def task_refusal(env_id: str, num_envs: int = 1) -> str | None:
+    """Why ``env_id`` cannot serve, or None. The task is registered (by its module, imported
+    first, for an id ``module:Task-v0``), its dependencies are installed, ``num_envs`` copies of
+    its simulator fit in the available memory, it has a time limit, its actions are continuous,
+    its observations a vector or a goal Dict (``GOAL_KEYS``, each a vector), and one reset
+    returns observations of the shapes it declares."""
     try:
         name = import_task(env_id)
-    except Exception as e:
-        fail(f"--env-id {env_id}: cannot import {env_id.rpartition(':')[0]} "
-             f"({type(e).__name__}: {e})")  # fmt: skip
+    except BaseException as e:  # a module that raises, even SystemExit: not ours to end on
+        if isinstance(e, KeyboardInterrupt):
+            raise
+        return (f"--env-id {env_id}: cannot import {env_id.rpartition(':')[0]} "
+                f"({type(e).__name__}: {e})")  # fmt: skip
     if name not in gym.registry:
         close = current_version(name) or next(iter(difflib.get_close_matches(
             name, gym.registry, n=1)), None)  # fmt: skip
         close = close and env_id.removesuffix(name) + close  # with its module, if it has one
         hint = f"did you mean {close}?" if close else "use a registered id such as Hopper-v5"
-        fail(f"unknown --env-id {env_id!r}; {hint}")
+        return f"unknown --env-id {env_id!r}; {hint}"
     try:
         with warnings.catch_warnings(action="ignore"):  # an old version's: refused below
             env = gym.make(env_id)
     except gym.error.DependencyNotInstalled as e:
         if "mujoco_py" in str(e):
             current = current_version(name) or "a v4 or v5 MuJoCo task such as Hopper-v5"
-            fail(f"{env_id} needs the deprecated mujoco-py, which this project does not support; "
-                 f"use {current}")  # fmt: skip
-        fail(f"{env_id} needs a dependency that is not installed: {' '.join(map(str, e.args))}")
+            return (f"{env_id} needs the deprecated mujoco-py, which this project does not "
+                    f"support; use {current}")  # fmt: skip
+        return f"{env_id} needs a dependency that is not installed: {' '.join(map(str, e.args))}"
+    except Exception as e:
+        return f"--env-id {env_id}: making the task failed ({type(e).__name__}: {e})"
+    try:
+        return _env_refusal(env, env_id, num_envs)
+    finally:
+        env.close()
+
+
+def _env_refusal(env: gym.Env, env_id: str, num_envs: int) -> str | None:
+    """``task_refusal``'s checks of a made environment."""
     if env.spec.max_episode_steps is None:  # the replay and the evaluation wait for ends
-        fail(f"{env_id} has no time limit: register it with max_episode_steps, so that its "
-             "episodes end")  # fmt: skip
+        return (f"{env_id} has no time limit: register it with max_episode_steps, so that its "
+                "episodes end")  # fmt: skip
     action_space, observation_space = env.action_space, env.observation_space
     if (model := getattr(env.unwrapped, "model", None)) is not None:  # a MuJoCo task
         need = num_envs * (model.nbuffer + env.unwrapped.data.nbuffer + env.unwrapped.data.narena)
-        free = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-        if need > free:
-            fail(f"--num-envs {num_envs}: {num_envs} copies of {env_id}'s simulator need about "
-                 f"{need / 2**30:.1f} GiB, and {free / 2**30:.1f} GiB are free")  # fmt: skip
-    env.close()
+        if need > (free := available_memory()):
+            return (f"--num-envs {num_envs}: {num_envs} copies of {env_id}'s simulator need "
+                    f"about {need / 2**30:.1f} GiB, and {free / 2**30:.1f} GiB are "
+                    "free")  # fmt: skip
     if not isinstance(action_space, gym.spaces.Box):
-        fail(f"{env_id} has {type(action_space).__name__} actions; these scripts need continuous "
-             "(Box) actions, e.g. Hopper-v5, FetchReach-v4")  # fmt: skip
+        return (f"{env_id} has {type(action_space).__name__} actions; these scripts need "
+                "continuous (Box) actions, e.g. Hopper-v5, FetchReach-v4")  # fmt: skip
     if not (isinstance(observation_space, gym.spaces.Box) or goal_space(observation_space)):
-        fail(f"{env_id}'s observations are not supported: a vector (Box) or a goal Dict with "
-             f"vector {', '.join(GOAL_KEYS)} are")  # fmt: skip
-    return goal_space(observation_space)
+        return (f"{env_id}'s observations are not supported: a vector (Box) or a goal Dict with "
+                f"vector {', '.join(GOAL_KEYS)} are")  # fmt: skip
+    with warnings.catch_warnings(action="ignore"):
+        obs, _ = env.reset(seed=0)
+    boxes = observation_space.spaces if goal_space(observation_space) else {"": observation_space}
+    for key, box in boxes.items():
+        got = np.shape(obs[key] if key else obs)
+        if key in GOAL_KEYS + ("",) and got != box.shape:
+            what = f"observation {key!r}" if key else "observation"
+            return (f"{env_id}'s reset returns an {what} of shape {got}, its observation space "
+                    f"declares {box.shape}: make them agree")  # fmt: skip
+    return None
+
+
+def available_memory() -> int:
+    """Bytes of memory available to a new allocation (Linux's MemAvailable, else free pages)."""
+    try:
+        with open("/proc/meminfo") as f:
+            line = next(line for line in f if line.startswith("MemAvailable:"))
+        return 1024 * int(line.split()[1])
+    except (OSError, StopIteration):
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def check_memory(nbytes: float, what: str) -> None:
+    """Fail if ``what`` (a flag and its value) would need more than the available memory: an
+    allocation the machine cannot serve, refused before the run rather than a traceback in it."""
+    if nbytes > (free := available_memory()):
+        fail(f"{what} needs about {nbytes / 2**30:,.1f} GiB of memory, and "
+             f"{free / 2**30:.1f} GiB are available; make it smaller")  # fmt: skip
 
 
 GOAL_KEYS = ("observation", "achieved_goal", "desired_goal")

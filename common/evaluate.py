@@ -157,17 +157,19 @@ def evaluate_snapshot(snapshot: dict, env_id: str, seeds: list[int], video_dir=N
 
 
 def load_policy(path: str, env_id: str | None = None) -> Policy:
-    """The policy saved at ``path`` (``checkpoint.load``'s), optionally on another task
-    whose spaces match. Raises ``checkpoint.CheckpointError`` or ``ValueError`` on bad input."""
+    """The policy saved at ``path`` (``checkpoint.load``'s), on its own task or on ``env_id``,
+    another whose spaces match. A model file never chooses code to import: a task of a user's
+    module (``module:Task-v0``) is made only when ``env_id`` names it. Raises
+    ``checkpoint.CheckpointError`` or ``ValueError`` on bad input."""
     content = checkpoint.load(path)
-    env_id = env_id or content["args"]["env_id"]
+    if env_id is None:
+        env_id = str(content["args"].get("env_id", ""))
+        if ":" in env_id:
+            raise ValueError(f"this policy was trained on {env_id}; pass --env-id {env_id} "
+                             f"to import {env_id.rpartition(':')[0]}")  # fmt: skip
     cli.register_goal_tasks()
-    try:
-        registered = cli.import_task(env_id) in gym.registry  # a module:Task-v0's module first
-    except ImportError:
-        registered = False
-    if not registered:
-        raise ValueError(f"unknown --env-id {env_id!r}: not a registered gymnasium id")
+    if why := cli.task_refusal(env_id):
+        raise ValueError(why)
     return Policy(content, env_id)
 
 

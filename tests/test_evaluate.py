@@ -112,6 +112,50 @@ def test_bad_input_gets_one_clear_line(hopper_run, tmp_path, capsys):
     assert "--episodes" in refused(capsys, str(hopper_run), "--episodes", "0")
 
 
+def renamed(run_dir, tmp_path, env_id: str):
+    """A copy of ``run_dir``'s model.pt whose saved ``env_id`` names another task."""
+    content = torch.load(run_dir / "model.pt", weights_only=True)
+    content["args"]["env_id"] = env_id
+    torch.save(content, tmp_path / "model.pt")
+    return tmp_path / "model.pt"
+
+
+def test_a_model_file_never_chooses_the_code_that_is_imported(hopper_run, tmp_path, capsys):
+    """A saved ``module:Task`` is imported only when the user names it with --env-id: a model.pt
+    naming ``this`` prints no Zen of Python, one naming a notes.py beside it does not run it;
+    each says, in one line, which flag to pass. Passed, the module is imported."""
+    (tmp_path / "notes.py").write_text(f"open({str(tmp_path / 'RAN')!r}, 'w').close()\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    for module in ("this", "notes"):
+        path = renamed(hopper_run, tmp_path, f"{module}:Hopper-v5")
+        cmd = [sys.executable, "-m", "common.evaluate", str(path)]
+        result = subprocess.run(cmd, env=env, cwd=tmp_path, capture_output=True, text=True)
+        assert_clean_error(result, f"this policy was trained on {module}:Hopper-v5; pass "
+                                   f"--env-id {module}:Hopper-v5 to import {module}")  # fmt: skip
+        assert "Beautiful is better" not in result.stdout + result.stderr
+        with pytest.raises(ValueError, match="pass --env-id"):
+            evaluate.load_policy(str(path))
+    assert not (tmp_path / "RAN").exists(), "the model file ran notes.py"
+    with pytest.raises(ValueError, match="pass --env-id gone_module:Hopper-v5"):
+        evaluate.load_policy(str(renamed(hopper_run, tmp_path, "gone_module:Hopper-v5")))
+    line = refused(capsys, str(tmp_path / "model.pt"), "--env-id", "gone_module:Hopper-v5")
+    assert "cannot import gone_module (ModuleNotFoundError" in line, line
+    result = subprocess.run([sys.executable, "-m", "common.evaluate", str(path), "--env-id",
+                             "notes:Hopper-v5", "--seed", "1", "--episodes", "1"], env=env,
+                            cwd=tmp_path, capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert result.returncode == 0 and (tmp_path / "RAN").exists(), result.stderr
+
+
+def test_a_task_evaluate_cannot_drive_is_one_line(hopper_run, tmp_path, monkeypatch, capsys):
+    """Discrete actions, a missing dependency, mujoco-py, a user's module that raises."""
+    (tmp_path / "raising.py").write_text("raise RuntimeError('broken on purpose')\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for env_id, needle in (("CartPole-v1", "Discrete actions"), ("CarRacing-v3", "not installed"),
+                           ("Hopper-v2", "mujoco-py"), ("raising:Task-v0", "cannot import "
+                           "raising (RuntimeError: broken")):  # fmt: skip
+        assert needle in refused(capsys, str(hopper_run), "--env-id", env_id), env_id
+
+
 def test_an_interrupted_save_leaves_the_previous_checkpoint_loadable(tmp_path, monkeypatch):
     path = str(tmp_path / "model.pt")
     agent = torch.nn.Linear(2, 2)
