@@ -29,16 +29,15 @@ import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
 from common import cli, diagnostics, her
-from common.gae import compute_gae
 from common.grasped_start import GraspedStart, refusal
 from common.her import HerReplayBuffer, goal_task_reward, sparse_return_range
 from common.normalizer import InputNormalizer, RewardScaler
 from common.replay import ReplayBuffer, buffer_refusal, sample_replay
-from common.rollout import collect_rollout, make_vector_env
 from common.run import Run, RunArgs
 
 cli.register_goal_tasks()
 torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
+SUCCESS_KEYS = ("is_success", "success")  # a goal task's success flag: Fetch's, the mazes'
 BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
 RECIPE = dict(
     hidden=256, target_std=1.0, normalization="paper", action_l2=1.0, twin_critic=True
@@ -248,25 +247,56 @@ class QNetwork(nn.Module):
         return qs if both else qs[0]
 
 
-# ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
-def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae_lambda: float):
-    """GAE advantages and pi_old's statistics of a rollout, as one flat batch. V(s_{t+1}) is the
-    next row's V, or V(final_obs) where an episode ended (``compute_gae`` masks terminations)."""
-    with torch.no_grad():
-        values = agent.get_value(ro["obs"])
-        next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
-        ended = ro["episode_ends"].bool()
-        next_values = torch.where(ended, agent.get_value(ro["final_obs"]), next_values)
-        advantages = compute_gae(
-            ro["rewards"], values, next_values, ro["terminations"], ro["episode_ends"],
-            gamma=gamma, gae_lambda=gae_lambda,
-        )  # fmt: skip
-        pi_old = agent.dist(ro["obs"])
-        return {"obs": ro["obs"].flatten(0, 1), "actions": ro["actions"].flatten(0, 1),
-                "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),
-                "mean": pi_old.mean.flatten(0, 1), "std": pi_old.stddev.flatten(0, 1),
-                "advantages": advantages.flatten(),
-                "returns": (advantages + values).flatten()}  # fmt: skip
+# ALGO LOGIC: the rollout: T = num_steps steps of pi_theta in each of N = num_envs envs
+def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, rb, update_norm: bool = True):
+    """Step ``envs`` ``num_steps`` times with a_t ~ pi_theta(.|s_t). Returns time-major ``(T, N,
+    ...)`` tensors ``obs`` (normalised, as the policy saw them), ``actions``, ``rewards`` (raw),
+    ``terminations``, ``episode_ends`` and ``final_obs``; the raw observation the envs stopped
+    in; the finished episodes ``(t, env, return, length, success or None)``.
+
+    Every raw transition also goes into the replay buffer ``rb``, with the action executed
+    (clipped to the bounds: the critic learns its Q) and its real next observation.
+
+    The envs reset SAME_STEP: where an episode ends at step t, the observation returned is the
+    next episode's first, and the true last one is in ``infos["final_obs"]``. It is kept
+    (``final_obs``, zeros elsewhere) so that GAE can bootstrap a truncated episode from V(s_T),
+    and the replay never stores a transition that crosses a reset.
+    """
+    T, N, act_dim = num_steps, envs.num_envs, envs.single_action_space.shape[0]
+    low, high = envs.single_action_space.low, envs.single_action_space.high
+    obs_dim = norm(raw_obs).shape[-1]  # the policy's input
+    ro = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
+          "actions": torch.zeros((T, N, act_dim)), "rewards": torch.zeros((T, N)),
+          "terminations": torch.zeros((T, N)), "episode_ends": torch.zeros((T, N))}  # fmt: skip
+    episodes = []
+    for t in range(T):
+        if update_norm:
+            norm.update(raw_obs)
+        ro["obs"][t] = norm(raw_obs)
+        with torch.no_grad():
+            ro["actions"][t] = agent.dist(ro["obs"][t]).sample()  # a_t ~ pi_theta(.|s_t)
+        executed = np.clip(ro["actions"][t].numpy(), low, high)  # the env's action bounds
+        next_raw_obs, reward, terminated, truncated, infos = envs.step(executed)
+        ended = terminated | truncated
+        ro["rewards"][t] = torch.as_tensor(reward)
+        ro["terminations"][t] = torch.as_tensor(terminated)
+        ro["episode_ends"][t] = torch.as_tensor(ended)
+        real_next_obs = copy.deepcopy(next_raw_obs) if ended.any() else next_raw_obs
+        for i in np.flatnonzero(ended):  # next_raw_obs[i] is the next episode's first
+            final = infos["final_obs"][i]  # its true last state
+            if isinstance(real_next_obs, dict):  # a goal task's Dict
+                for key in real_next_obs:
+                    real_next_obs[key][i] = final[key]
+            else:
+                real_next_obs[i] = final
+            ro["final_obs"][t, i] = norm(final)
+            info = infos["final_info"]
+            success = next((float(info[k][i]) for k in SUCCESS_KEYS if k in info), None)
+            episodes.append((t, i, float(info["episode"]["r"][i]), int(info["episode"]["l"][i]),
+                             success))  # fmt: skip
+        rb.add(raw_obs, executed, reward, real_next_obs, terminated, truncated)
+        raw_obs = next_raw_obs
+    return ro, raw_obs, episodes
 
 
 # ALGO LOGIC: the critic step: DDPG's TD learning, eq. 6's soft target update
@@ -288,6 +318,35 @@ def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer,
         for p, p_target in zip(qf.parameters(), qf_target.parameters(), strict=True):
             p_target.lerp_(p, tau)  # w' <- tau w + (1 - tau) w'   (eq. 6)
     return loss.item(), qs[0].mean().item()
+
+
+# ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
+def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae_lambda: float):
+    """GAE advantages (eq. 4) and pi_old's statistics of a rollout ``ro``, as one flat batch.
+
+    The k-step estimates of eq. 3 bootstrap from V after k rewards; GAE, their (1 - lam)-weighted
+    average, telescopes into sum_l (gamma lam)^l delta_{t+l}, delta_t = r_t + gamma V(s_{t+1}) -
+    V(s_t): lam = 0 is the one-step estimate, lam = 1 the Monte Carlo return minus V. Where an
+    episode ended at step t the sum stops, and s_{t+1} is its true last state (``final_obs``): a
+    termination (the hopper fell) has value 0, no bootstrap; a truncation (the time limit, every
+    Fetch episode) bootstraps from V(s_{t+1}) like any other step."""
+    with torch.no_grad():
+        values = agent.get_value(ro["obs"])
+        next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
+        ended = ro["episode_ends"].bool()
+        next_values = torch.where(ended, agent.get_value(ro["final_obs"]), next_values)
+        not_terminal, goes_on = 1.0 - ro["terminations"], 1.0 - ro["episode_ends"]
+        advantages, last = torch.zeros_like(values), torch.zeros_like(values[0])  # A_{T} = 0
+        for t in reversed(range(len(values))):  # eq. 4 backwards: A_t = delta_t + gamma lam A_{t+1}
+            delta = ro["rewards"][t] + gamma * not_terminal[t] * next_values[t] - values[t]
+            last = delta + gamma * gae_lambda * goes_on[t] * last  # the sum stops at an episode end
+            advantages[t] = last
+        pi_old = agent.dist(ro["obs"])
+        return {"obs": ro["obs"].flatten(0, 1), "actions": ro["actions"].flatten(0, 1),
+                "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),
+                "mean": pi_old.mean.flatten(0, 1), "std": pi_old.stddev.flatten(0, 1),
+                "advantages": advantages.flatten(),
+                "returns": (advantages + values).flatten()}  # fmt: skip
 
 
 # ALGO LOGIC: the control variate (eq. 9)
@@ -323,6 +382,36 @@ def learning_signal(b: dict, args: Args):
         if args.normalization == "unbiased":
             off_scale = 1.0 / (signal_std.item() + 1e-8)  # the same 1/sigma on both terms
     return adv, signal_std, 1.0 if args.use_cv else args.nu, off_scale
+
+
+# DIAGNOSTICS: the mixture, measured on the batch before the update
+def interpolation_report(agent: Agent, qf: QNetwork, b: dict, args: Args, replay, run,
+                         chunks: int = 4) -> dict:  # fmt: skip
+    """The update's two weighted terms on its batch ``b`` at theta = theta_old, through its own
+    ``learning_signal`` and ``ipg_loss``: their gradient norms (1 - nu) |g_on| and b |g_off|, and
+    ``effective_nu`` = |off| / (|on| + |off|), the share the off-policy term really has; then
+    the control variate's variance (eq. 8 at eta = 0 and 1, ``common/diagnostics.py``). The
+    off-policy states: the batch's, or one draw of ``replay``; random draws from ``run``'s
+    diagnostics streams, so that measuring never moves the training's."""
+    generator = run.diagnostics_generator
+    cv = b["cv"] if args.use_cv else control_variate(qf, agent, b["obs"], b["actions"])
+    off_states = b["obs"] if args.off_policy_states == "batch" else replay(
+        1, run.diagnostics_rng)[0]["obs"]  # fmt: skip
+    params = agent.actor_parameters()
+    signal, _, off_weight, off_scale = learning_signal(b, args)  # the update's own
+    on_term, off_term = ipg_loss(agent, qf, agent.dist(b["obs"]), b, signal, off_states,
+                                 args.q_bar, generator)  # fmt: skip
+    on = (1.0 - args.nu) * diagnostics.flat_grad(on_term, params).norm().item()
+    off = off_weight * diagnostics.flat_grad(off_term * off_scale, params).norm().item()
+
+    def estimate(mb: dict, with_cv: bool):  # eq. 8 at eta = 1 or 0, on the raw scale
+        adv = mb["advantages"] - mb["cv"] if with_cv else mb["advantages"]
+        on_term, off_term = ipg_loss(agent, qf, agent.dist(mb["obs"]), mb, adv,
+                                     mb["obs"] if with_cv else None)  # fmt: skip
+        return on_term + off_term
+
+    measured = {"on_grad_norm": on, "off_grad_norm": off, "effective_nu": off / (on + off + 1e-12)}
+    return measured | diagnostics.variance_report(agent, b, cv, estimate, chunks, generator)
 
 
 # ALGO LOGIC: the IPG update (eq. 10) on the PPO-KL surrogate (eq. 5)
@@ -392,8 +481,9 @@ if __name__ == "__main__":
     num_iterations = args.total_timesteps // batch_size
     run = Run(args)  # TRY NOT TO MODIFY: run folder, TensorBoard, seeding (common/run.py)
 
-    # ENV SETUP
-    envs = make_vector_env(make_env(args.env_id, args.grasped_start), args.num_envs)
+    # ENV SETUP: N envs stepped in turn, SAME_STEP autoreset (see rollout)
+    envs = gym.vector.SyncVectorEnv([make_env(args.env_id, args.grasped_start)] * args.num_envs,
+                                    autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)  # fmt: skip
     space = envs.single_observation_space
     goal_dim = space["desired_goal"].shape[0] if isinstance(space, gym.spaces.Dict) else 0
     obs_dim = space["observation"].shape[0] if goal_dim else space.shape[0]
@@ -432,8 +522,8 @@ if __name__ == "__main__":
                 q_optimizer.param_groups[0]["lr"] = frac * args.critic_learning_rate
 
             # ALGO LOGIC: rollout
-            ro, raw_obs, episodes = collect_rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
-                                                    update_norm=args.norm_obs)  # fmt: skip
+            ro, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
+                                            update_norm=args.norm_obs)  # fmt: skip
             global_step = run.record_episodes(episodes)
 
             # ALGO LOGIC: one reward scale for GAE and the critic
@@ -462,8 +552,7 @@ if __name__ == "__main__":
                 run.log({"ipg/cv_mean": b["cv"].mean().item()})
             diagnose = args.diagnostics_every and (iteration - 1) % args.diagnostics_every == 0
             if learning and diagnose:  # DIAGNOSTICS: the mixture, before the update (ipg/*)
-                measured = diagnostics.interpolation_report(agent, qf, b, args, replay, run,
-                    control_variate, ipg_loss, learning_signal)  # fmt: skip
+                measured = interpolation_report(agent, qf, b, args, replay, run)
                 run.log({f"ipg/{key}": value for key, value in measured.items()})
 
             # ALGO LOGIC: the IPG update (eq. 10 on eq. 5)

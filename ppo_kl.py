@@ -22,13 +22,12 @@ import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
 from common import cli
-from common.gae import compute_gae
 from common.normalizer import RewardScaler, RunningMeanStd
-from common.rollout import collect_rollout, make_vector_env
 from common.run import Run, RunArgs
 
 cli.register_goal_tasks()
 torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
+SUCCESS_KEYS = ("is_success", "success")  # a goal task's success flag: Fetch's, the mazes'
 BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
 
 
@@ -127,19 +126,67 @@ class Agent(nn.Module):
         return Normal(mean, self.actor_logstd.expand_as(mean).exp())
 
 
+# ALGO LOGIC: the rollout: T = num_steps steps of pi_theta in each of N = num_envs envs
+def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, update_norm: bool = True):
+    """Step ``envs`` ``num_steps`` times with a_t ~ pi_theta(.|s_t). Returns time-major ``(T, N,
+    ...)`` tensors ``obs`` (normalised, as the policy saw them), ``actions``, ``rewards`` (raw),
+    ``terminations``, ``episode_ends`` and ``final_obs``; the raw observation the envs stopped
+    in; the finished episodes ``(t, env, return, length, success or None)``.
+
+    The envs reset SAME_STEP: where an episode ends at step t, the observation returned is the
+    next episode's first, and the true last one is in ``infos["final_obs"]``. It is kept
+    (``final_obs``, zeros elsewhere) so that GAE can bootstrap a truncated episode from V(s_T).
+    """
+    T, N, act_dim = num_steps, envs.num_envs, envs.single_action_space.shape[0]
+    low, high = envs.single_action_space.low, envs.single_action_space.high
+    obs_dim = norm(raw_obs).shape[-1]  # the policy's input
+    ro = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
+          "actions": torch.zeros((T, N, act_dim)), "rewards": torch.zeros((T, N)),
+          "terminations": torch.zeros((T, N)), "episode_ends": torch.zeros((T, N))}  # fmt: skip
+    episodes = []
+    for t in range(T):
+        if update_norm:
+            norm.update(raw_obs)
+        ro["obs"][t] = norm(raw_obs)
+        with torch.no_grad():
+            ro["actions"][t] = agent.dist(ro["obs"][t]).sample()  # a_t ~ pi_theta(.|s_t)
+        executed = np.clip(ro["actions"][t].numpy(), low, high)  # the env's action bounds
+        next_raw_obs, reward, terminated, truncated, infos = envs.step(executed)
+        ended = terminated | truncated
+        ro["rewards"][t] = torch.as_tensor(reward)
+        ro["terminations"][t] = torch.as_tensor(terminated)
+        ro["episode_ends"][t] = torch.as_tensor(ended)
+        for i in np.flatnonzero(ended):  # next_raw_obs[i] is the next episode's first
+            ro["final_obs"][t, i] = norm(infos["final_obs"][i])
+            info = infos["final_info"]
+            success = next((float(info[k][i]) for k in SUCCESS_KEYS if k in info), None)
+            episodes.append((t, i, float(info["episode"]["r"][i]), int(info["episode"]["l"][i]),
+                             success))  # fmt: skip
+        raw_obs = next_raw_obs
+    return ro, raw_obs, episodes
+
+
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
 def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae_lambda: float):
-    """GAE advantages and pi_old's statistics of a rollout, as one flat batch. V(s_{t+1}) is the
-    next row's V, or V(final_obs) where an episode ended (``compute_gae`` masks terminations)."""
+    """GAE advantages (eq. 4) and pi_old's statistics of a rollout ``ro``, as one flat batch.
+
+    The k-step estimates of eq. 3 bootstrap from V after k rewards; GAE, their (1 - lam)-weighted
+    average, telescopes into sum_l (gamma lam)^l delta_{t+l}, delta_t = r_t + gamma V(s_{t+1}) -
+    V(s_t): lam = 0 is the one-step estimate, lam = 1 the Monte Carlo return minus V. Where an
+    episode ended at step t the sum stops, and s_{t+1} is its true last state (``final_obs``): a
+    termination (the hopper fell) has value 0, no bootstrap; a truncation (the time limit, every
+    Fetch episode) bootstraps from V(s_{t+1}) like any other step."""
     with torch.no_grad():
         values = agent.get_value(ro["obs"])
         next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
         ended = ro["episode_ends"].bool()
         next_values = torch.where(ended, agent.get_value(ro["final_obs"]), next_values)
-        advantages = compute_gae(
-            ro["rewards"], values, next_values, ro["terminations"], ro["episode_ends"],
-            gamma=gamma, gae_lambda=gae_lambda,
-        )  # fmt: skip
+        not_terminal, goes_on = 1.0 - ro["terminations"], 1.0 - ro["episode_ends"]
+        advantages, last = torch.zeros_like(values), torch.zeros_like(values[0])  # A_{T} = 0
+        for t in reversed(range(len(values))):  # eq. 4 backwards: A_t = delta_t + gamma lam A_{t+1}
+            delta = ro["rewards"][t] + gamma * not_terminal[t] * next_values[t] - values[t]
+            last = delta + gamma * gae_lambda * goes_on[t] * last  # the sum stops at an episode end
+            advantages[t] = last
         pi_old = agent.dist(ro["obs"])
         return {"obs": ro["obs"].flatten(0, 1), "actions": ro["actions"].flatten(0, 1),
                 "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),
@@ -201,8 +248,9 @@ if __name__ == "__main__":
     num_iterations = args.total_timesteps // batch_size
     run = Run(args)  # TRY NOT TO MODIFY: run folder, TensorBoard, seeding (common/run.py)
 
-    # ENV SETUP
-    envs = make_vector_env(make_env(args.env_id), args.num_envs)  # common/rollout.py
+    # ENV SETUP: N envs stepped in turn, SAME_STEP autoreset (see rollout)
+    envs = gym.vector.SyncVectorEnv([make_env(args.env_id)] * args.num_envs,
+                                    autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)  # fmt: skip
     obs_dim = envs.single_observation_space.shape[0]
     act_dim = envs.single_action_space.shape[0]
     envs.single_action_space.seed(run.streams.action_space_seed)
@@ -224,8 +272,8 @@ if __name__ == "__main__":
                 optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
             # ALGO LOGIC: rollout
-            ro, raw_obs, episodes = collect_rollout(envs, agent, norm, raw_obs, args.num_steps,
-                                                    update_norm=args.norm_obs)  # fmt: skip
+            ro, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps,
+                                            update_norm=args.norm_obs)  # fmt: skip
             global_step = run.record_episodes(episodes)
 
             # ALGO LOGIC: advantages (eq. 3-4) on scaled rewards

@@ -1,8 +1,16 @@
-"""GAE (eq. 4) against its definition: the explicit discounted sum of TD residuals."""
+"""GAE (eq. 4), as each script computes it in ``make_batch``, against its definition: the
+explicit discounted sum of TD residuals, stopping at an episode's end, bootstrapping from the
+true last state where an episode was truncated and not where it terminated."""
 
+import pytest
 import torch
 
-from common.gae import compute_gae
+import ipg_her
+import ipg_her_recipe
+import ppo_kl
+import qprop_ppo
+
+SCRIPTS = [ppo_kl, qprop_ppo, ipg_her, ipg_her_recipe]
 
 
 def explicit_gae(rewards, values, next_values, terminations, episode_ends, gamma, lam):
@@ -19,36 +27,54 @@ def explicit_gae(rewards, values, next_values, terminations, episode_ends, gamma
     return adv
 
 
-def test_gae_matches_explicit_sum_with_terminations_and_truncations():
+def batch_of(script, T, N, seed, ends, terminations, gamma, lam):
+    """``script.make_batch`` on a rollout whose V is read off the observations' first entry:
+    V(s_t) = obs[t, 0], V(final_obs) = final_obs[t, 0], V(last_obs) = last_obs[0]. Returns its
+    advantages as (T, N), and what they must be by the explicit sum."""
+    g = torch.Generator().manual_seed(seed)
+    agent = script.Agent(2, 1)
+    agent.get_value = lambda x: x[..., 0]
+    ro = {"obs": torch.randn(T, N, 2, generator=g), "final_obs": torch.randn(T, N, 2, generator=g),
+          "actions": torch.randn(T, N, 1, generator=g), "rewards": torch.randn(T, N, generator=g),
+          "terminations": terminations, "episode_ends": ends}  # fmt: skip
+    last_obs = torch.randn(N, 2, generator=g)
+    b = script.make_batch(agent, ro, last_obs, gamma, lam)
+    values = ro["obs"][..., 0]
+    next_values = torch.cat([values[1:], last_obs[None, :, 0]])
+    next_values = torch.where(ends.bool(), ro["final_obs"][..., 0], next_values)  # true last state
+    expected = explicit_gae(*(x.double() for x in (ro["rewards"], values, next_values)),
+                            terminations, ends, gamma, lam)  # fmt: skip
+    return b, expected.float(), values
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda m: m.__name__)
+def test_gae_matches_the_explicit_sum_with_terminations_and_truncations(script):
     g = torch.Generator().manual_seed(0)
     T, N, gamma, lam = 40, 3, 0.97, 0.9
-    rewards, values, next_values = (
-        torch.randn(T, N, generator=g, dtype=torch.float64) for _ in range(3)
-    )
-    ends = (torch.rand(T, N, generator=g) < 0.15).double()
-    terminations = (
-        ends * (torch.rand(T, N, generator=g) < 0.5).double()
-    )  # the others are truncations
+    ends = (torch.rand(T, N, generator=g) < 0.15).float()
+    terminations = ends * (torch.rand(T, N, generator=g) < 0.5).float()  # the others truncated
     assert terminations.sum() > 0 and (ends - terminations).sum() > 0
-    adv = compute_gae(rewards, values, next_values, terminations, ends, gamma, lam)
-    torch.testing.assert_close(
-        adv, explicit_gae(rewards, values, next_values, terminations, ends, gamma, lam)
-    )
+    b, expected, values = batch_of(script, T, N, 1, ends, terminations, gamma, lam)
+    torch.testing.assert_close(b["advantages"], expected.flatten(), rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(b["returns"], (expected + values).flatten(), rtol=1e-5, atol=1e-5)
 
 
-def test_gae_lambda_limits():
-    """lam = 0: the one-step TD residual; lam = 1 with no episode end: discounted return minus V."""
-    g = torch.Generator().manual_seed(1)
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda m: m.__name__)
+def test_gae_lambda_limits(script):
+    """lam = 0: the one-step TD residual; lam = 1 with no episode end: the discounted return of
+    the rollout, bootstrapped from V of the state it stopped in, minus V."""
     T, N, gamma = 10, 2, 0.9
-    rewards, values, next_values = (
-        torch.randn(T, N, generator=g, dtype=torch.float64) for _ in range(3)
-    )
-    zeros = torch.zeros(T, N, dtype=torch.float64)
-    adv0 = compute_gae(rewards, values, next_values, zeros, zeros, gamma, 0.0)
-    torch.testing.assert_close(adv0, rewards + gamma * next_values - values)
-    # a consistent value sequence: next_values[t] = values[t + 1]
-    next_values[:-1] = values[1:]
-    adv1 = compute_gae(rewards, values, next_values, zeros, zeros, gamma, 1.0)
-    discounts = gamma ** torch.arange(T, dtype=torch.float64)
-    mc = sum(discounts[l] * rewards[l] for l in range(T)) + gamma**T * next_values[-1]
-    torch.testing.assert_close(adv1[0], mc - values[0])
+    zeros = torch.zeros(T, N)
+    b0, expected0, _ = batch_of(script, T, N, 2, zeros, zeros, gamma, 0.0)
+    torch.testing.assert_close(b0["advantages"], expected0.flatten())
+    g = torch.Generator().manual_seed(3)
+    agent = script.Agent(2, 1)
+    agent.get_value = lambda x: x[..., 0]
+    ro = {"obs": torch.randn(T, N, 2, generator=g), "final_obs": torch.zeros(T, N, 2),
+          "actions": torch.randn(T, N, 1, generator=g), "rewards": torch.randn(T, N, generator=g),
+          "terminations": zeros, "episode_ends": zeros}  # fmt: skip
+    last_obs = torch.randn(N, 2, generator=g)
+    b1 = script.make_batch(agent, ro, last_obs, gamma, 1.0)
+    discounts = gamma ** torch.arange(T, dtype=torch.float32)
+    mc = (discounts[:, None] * ro["rewards"]).sum(0) + gamma**T * last_obs[:, 0]
+    torch.testing.assert_close(b1["advantages"].view(T, N)[0], mc - ro["obs"][0, :, 0])

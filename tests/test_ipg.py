@@ -190,7 +190,7 @@ def test_replayed_transitions_never_cross_a_reset_and_keep_the_true_final_observ
     rb = HerReplayBuffer(1000, 2, 2, 1, 2, reward, n_sampled_goal=0)
     raw_obs, _ = envs.reset(seed=0)
     norm = InputNormalizer(2, 2)
-    ro, _, episodes = ipg_her.collect_rollout(envs, agent, norm, raw_obs, 30, rb)
+    ro, _, episodes = ipg_her.rollout(envs, agent, norm, raw_obs, 30, rb)
     n = rb.filled
     assert n == 30 and len(episodes) == int(ro["episode_ends"].sum()) > 0
     np.testing.assert_array_equal(
@@ -326,10 +326,9 @@ def diagnostics_run(seed: int = 0):
 
 def interpolation(agent, qf, b, args, states, chunks=4):
     """``interpolation_report`` as ipg_her.py calls it, its replay always drawing ``states``."""
-    return diagnostics.interpolation_report(
-        agent, qf, b, args, lambda n, rng: [{"obs": states}], diagnostics_run(),
-        ipg_her.control_variate, ipg_her.ipg_loss, ipg_her.learning_signal, chunks,
-    )  # fmt: skip
+    return ipg_her.interpolation_report(
+        agent, qf, b, args, lambda n, rng: [{"obs": states}], diagnostics_run(), chunks
+    )
 
 
 def test_gradient_diagnostics_measure_the_two_terms_and_the_control_variates_variance():
@@ -365,7 +364,7 @@ def test_gradient_diagnostics_measure_the_two_terms_and_the_control_variates_var
     assert d["grad_var_cv"] < 0.5 * d["grad_var"]
 
 
-def test_gradient_diagnostics_measure_the_update_that_will_run():
+def test_gradient_diagnostics_measure_the_update_that_will_run(monkeypatch):
     """The report's off-policy states are the update's: one draw of the replay, from the
     diagnostics' own stream (the training's never moves), or with --off-policy-states batch the
     batch's (no draw); its A_bar is the batch's cv with --use-cv, else the critic's on the
@@ -384,11 +383,8 @@ def test_gradient_diagnostics_measure_the_update_that_will_run():
         off_term = -qf(s, agent.actor_mean(s)).mean() / (b["advantages"].std() + 1e-8)
         return nu * diagnostics.flat_grad(off_term, params).norm().item()
 
-    def measure(args, control_variate=ipg_her.control_variate):
-        return diagnostics.interpolation_report(
-            agent, qf, b, args, replay_states, run, control_variate, ipg_her.ipg_loss,
-            ipg_her.learning_signal,
-        )  # fmt: skip
+    def measure(args):
+        return ipg_her.interpolation_report(agent, qf, b, args, replay_states, run)
 
     d = measure(ipg_her.Args(nu=0.3))
     assert draws == [(1, run.diagnostics_rng)]
@@ -405,7 +401,8 @@ def test_gradient_diagnostics_measure_the_update_that_will_run():
         raise AssertionError("with --use-cv the batch's cv is A_bar")
 
     b["cv"] = torch.randn(64, generator=torch.Generator().manual_seed(5))
-    d = measure(ipg_her.Args(nu=0.3, use_cv=True), unused)
+    monkeypatch.setattr(ipg_her, "control_variate", unused)
+    d = measure(ipg_her.Args(nu=0.3, use_cv=True))
     assert d["corr_adv_cv"] == pytest.approx(diagnostics.correlation(b["advantages"], b["cv"]))
 
 

@@ -60,9 +60,7 @@ def test_no_transition_crosses_a_reset_and_truncation_bootstraps_from_final_obs(
         agent.actor_logstd.fill_(0.5)  # wide enough that some episodes terminate early
     raw_obs, _ = envs.reset(seed=0)
     obs_rms = RunningMeanStd((2,))  # never updated: normalisation is the identity here
-    ro, last_raw, episodes = ppo_kl.collect_rollout(
-        envs, agent, obs_rms, raw_obs, 40, update_norm=False
-    )
+    ro, last_raw, episodes = ppo_kl.rollout(envs, agent, obs_rms, raw_obs, 40, update_norm=False)
     obs, final_obs, ends, terms = (
         ro["obs"],
         ro["final_obs"],

@@ -17,7 +17,6 @@ from toy_envs import counting_envs
 
 import ppo_kl
 import qprop_ppo
-from common import diagnostics
 from common.normalizer import RunningMeanStd
 
 
@@ -346,7 +345,7 @@ def test_replay_holds_the_executed_action():
         agent.actor_logstd.fill_(0.5)
     rb = qprop_ppo.ReplayBuffer(1000, 2, 2, 1, seed=0)
     raw_obs, _ = envs.reset(seed=0)
-    ro, _, _ = qprop_ppo.collect_rollout(envs, agent, RunningMeanStd((2,)), raw_obs, 30, rb)
+    ro, _, _ = qprop_ppo.rollout(envs, agent, RunningMeanStd((2,)), raw_obs, 30, rb)
     sampled = ro["actions"].numpy()
     assert np.any(np.abs(sampled) > 1), "no action outside the bounds: the check would be vacuous"
     np.testing.assert_array_equal(rb.actions[:30], np.clip(sampled, -1.0, 1.0))
@@ -372,7 +371,7 @@ def test_qprop_report_falls_where_the_control_variate_is_right(sign, k):
     noise = noise - (noise @ cv) / (cv @ cv) * cv
     noise = k * cv.norm() / noise.norm() * noise
     b["advantages"] = sign * b["cv"] + noise
-    d = diagnostics.qprop_report(agent, qf, b, qprop_ppo.qprop_loss)
+    d = qprop_ppo.qprop_report(agent, qf, b)
     assert d["corr_adv_cv"] == pytest.approx(sign / np.sqrt(1 + k**2), abs=1e-4)
     if sign > 0 and k == 0:
         assert 0 <= d["grad_var_cv"] < 0.5 * d["grad_var"]
@@ -388,9 +387,7 @@ def test_qprop_report_leaves_the_training_stream_alone():
     b = random_batch(64, 5, 2, agent)
     b["cv"] = qprop_ppo.control_variate(qf, agent, b["obs"], b["actions"])
     state = torch.get_rng_state()
-    diagnostics.qprop_report(agent, qf, b, qprop_ppo.qprop_loss, torch.Generator().manual_seed(1))
+    qprop_ppo.qprop_report(agent, qf, b, torch.Generator().manual_seed(1))
     assert torch.equal(torch.get_rng_state(), state)
-    diagnostics.qprop_report(
-        agent, qf, b, qprop_ppo.qprop_loss
-    )  # without one: the global stream moves
+    qprop_ppo.qprop_report(agent, qf, b)  # without one: the global stream moves
     assert not torch.equal(torch.get_rng_state(), state)

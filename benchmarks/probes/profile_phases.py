@@ -38,8 +38,8 @@ PHASES = (
      None, None),
     ("normalisation", ("update", "normalize", "__call__", "inputs"), ("common/normalizer.py",),
      None),
-    ("policy inference", ("dist", "_call_impl", "sample"), None, "collect_rollout"),
-    ("rollout bookkeeping", ("collect_rollout",), None, None),
+    ("policy inference", ("dist", "_call_impl", "sample"), None, "rollout"),
+    ("rollout bookkeeping", ("rollout",), None, None),
     ("logging and checkpoints", ("end_iteration", "record_episodes", "Run.log"), None, None),
 )  # fmt: skip
 RATE = 200  # samples per second

@@ -36,16 +36,16 @@ def test_the_profile_gives_each_sample_to_its_phase():
     the same function (``Agent.dist``, a normaliser's ``__call__``) counts where it is called, and
     a replay buffer's writes count in either file (``HerReplayBuffer.add`` calls its base's)."""
     stacks = {
-        "collect_rollout (common/rollout.py:51);SyncVectorEnv.step (gymnasium/vector/"
+        "rollout (ppo_kl.py:151);SyncVectorEnv.step (gymnasium/vector/"
         "sync_vector_env.py:338);HopperEnv.step (gymnasium/envs/mujoco/hopper_v5.py:290)": 5,
-        "collect_rollout (common/rollout.py:47);Agent.dist (ppo_kl.py:120);Module._call_impl "
+        "rollout (ppo_kl.py:147);Agent.dist (ppo_kl.py:120);Module._call_impl "
         "(torch/nn/modules/module.py:1)": 3,
         "ppo_kl_update (ppo_kl.py:155);Agent.dist (ppo_kl.py:120)": 7,
-        "collect_rollout (common/rollout.py:45);RunningMeanStd.update (common/normalizer.py:30)": 2,
+        "rollout (ppo_kl.py:145);RunningMeanStd.update (common/normalizer.py:30)": 2,
         "RewardScaler.__call__ (common/normalizer.py:110)": 1,
         "critic_step (ipg_her.py:214);QNetwork.forward (ipg_her.py:180)": 4,
         "sample_replay (common/replay.py:130);HerReplayBuffer.sample (common/her.py:90)": 6,
-        "collect_rollout (common/rollout.py:60);ReplayBuffer.add (common/replay.py:40)": 3,
+        "rollout (ipg_her.py:240);ReplayBuffer.add (common/replay.py:40)": 3,
         "HerReplayBuffer.add (common/her.py:84);ReplayBuffer.add (common/replay.py:45)": 2,
         "end_iteration (common/run.py:193);finished (common/evaluate.py:195)": 8,
         "Adam.__init__ (torch/optim/adam.py:35)": 9,
