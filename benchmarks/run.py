@@ -35,12 +35,14 @@ The suites (``SUITES``: one row per variant x task, each on its seeds; ``--seeds
 """
 
 import ctypes
+import difflib
 import importlib
 import os
 import shlex
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -364,10 +366,29 @@ def fmt(seconds: float) -> str:
     return time.strftime("%H:%M:%S", time.gmtime(seconds))
 
 
+def refuse(message: str) -> int:
+    """Bad input: one line on stderr, exit code 2, no run started."""
+    print(f"error: {message}", file=sys.stderr)
+    return 2
+
+
 def main(args: Args) -> int:
     suite_dir = Path(args.out_dir) / args.suite
-    runs = suite_runs(args.suite, args.seeds, args.push_steps)
-    runs = [r for r in runs if args.only in r.folder]
+    every = suite_runs(args.suite, args.seeds, args.push_steps)
+    runs = [r for r in every if args.only in r.folder]
+    if not runs:  # a typo would otherwise run nothing and say all is well
+        names = sorted({r.name for r in every} | {r.env_id for r in every})
+        close = difflib.get_close_matches(args.only, names, n=3)
+        hint = f"did you mean {' or '.join(close)}?" if close else f"try one of {', '.join(names)}"
+        return refuse(f"--only {args.only}: no run of the {args.suite} suite has it in its "
+                      f"folder name ({{name}}__{{env_id}}__seed{{seed}}); {hint}")  # fmt: skip
+    if not args.dry_run:  # a folder the runs cannot write in fails here, not in each worker
+        try:
+            suite_dir.mkdir(parents=True, exist_ok=True)
+            tempfile.TemporaryFile(dir=suite_dir).close()
+        except OSError as error:
+            return refuse(f"--out-dir {args.out_dir}: cannot write in {suite_dir} "
+                          f"({error.strerror}); name a folder the runs can write in")  # fmt: skip
     todo = [r for r in runs if not finished(suite_dir / r.folder)]
     skipped = len(runs) - len(todo)
     alive = {r: pid for r in todo if (pid := running(suite_dir / r.folder))}
@@ -412,8 +433,7 @@ def main(args: Args) -> int:
         try:
             import ray
         except ImportError:
-            print("error: --backend ray needs Ray: pip install 'ray[default]'", file=sys.stderr)
-            return 2
+            return refuse("--backend ray needs Ray: pip install 'ray[default]'")
         # workers import this module from the project folder (the same path on every node)
         ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False,
                  runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}})  # fmt: skip

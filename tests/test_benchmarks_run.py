@@ -1,5 +1,6 @@
-"""benchmarks/run.py stopped: Ctrl-C or SIGTERM stops the suite (the running scripts save, nothing
-queued starts, the same command resumes), and kill -9 takes the running scripts with it."""
+"""benchmarks/run.py: Ctrl-C or SIGTERM stops the suite (the running scripts save, nothing queued
+starts, the same command resumes), kill -9 takes the running scripts with it, and bad input (a
+folder it cannot write in, an --only that matches no run) is one error line before any run."""
 
 import os
 import signal
@@ -9,7 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import ROOT
+from conftest import ROOT, assert_clean_error
 
 CHILD = '''"""A script as run.py sees one: Ctrl-C or SIGTERM saves a resume point and exits
 128 + signal (the one named "stubborn" ignores both); with --resume it is done at once."""
@@ -158,3 +159,45 @@ def test_kill_9_takes_the_runs_with_it_and_a_rerun_leaves_a_live_one_alone(tmp_p
         assert (run_dir / "resumed").exists() and (run_dir / "exit_code").read_text() == "0\n"
     finally:
         end(proc, tmp_path)
+
+
+def run_py(*flags: str) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "benchmarks/run.py", "--suite", "quick", *flags]
+    return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+
+
+@pytest.fixture
+def read_only(tmp_path):
+    """A folder no one can write in: chmod 555, or for root (whom it does not stop) chattr +i."""
+    folder = tmp_path / "read_only"
+    folder.mkdir()
+    folder.chmod(0o555)
+    immutable = os.access(folder, os.W_OK)  # root
+    if immutable and subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode:
+        pytest.skip("root, and chattr +i is not permitted here")
+    yield folder
+    if immutable:
+        subprocess.run(["chattr", "-i", str(folder)], check=True)
+    folder.chmod(0o755)
+
+
+@pytest.mark.parametrize("kind", ["file", "read-only folder"])
+def test_an_out_dir_it_cannot_write_in_is_one_error_line(tmp_path, request, kind):
+    """--out-dir a file or a read-only folder: one line naming it, before any run starts (no
+    traceback from each worker thread)."""
+    out_dir = tmp_path / "a_file" if kind == "file" else request.getfixturevalue("read_only")
+    if kind == "file":
+        out_dir.write_text("")
+    result = run_py("--out-dir", str(out_dir), "--only", "FetchReach")
+    assert_clean_error(result, f"--out-dir {out_dir}", "cannot write")
+    assert "to run" not in result.stdout
+
+
+def test_an_only_that_matches_no_run_is_an_error_with_a_hint(tmp_path):
+    """--only ipg_herr (a typo) does not run nothing and exit 0: one line names the closest run
+    names; with nothing close, it lists them."""
+    result = run_py("--out-dir", str(tmp_path), "--only", "ipg_herr")
+    assert_clean_error(result, "--only ipg_herr", "did you mean ipg_her?")
+    result = run_py("--out-dir", str(tmp_path), "--only", "xyzzy", "--dry-run")
+    assert_clean_error(result, "--only xyzzy", "FetchReach-v4", "ppo_kl")
+    assert not (tmp_path / "quick").exists()
