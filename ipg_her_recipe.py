@@ -65,27 +65,27 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     num_envs: int = 2
     """the number of parallel environments"""
     num_steps: int = 50
-    """steps per env per rollout (batch = num_envs * num_steps; ipg_her.py: 50, one episode)"""
+    """steps per env per rollout (batch = num_envs * num_steps; 50: a Fetch episode)"""
     learning_rate: float = 1e-3
-    """the learning rate of Adam (ipg_her.py: 1e-3, OpenAI's HER recipe)"""
+    """the learning rate of Adam (1e-3: OpenAI's HER recipe)"""
     anneal_lr: bool = False
     """anneal the learning rates (the policy's and the critic's) linearly to zero"""
     gamma: float = 0.98
-    """the discount factor gamma (ipg_her.py: 0.98, OpenAI's HER recipe)"""
+    """the discount factor gamma (0.98: OpenAI's HER recipe)"""
     gae_lambda: float = 0.95
     """lam of GAE (eq. 4)"""
     num_minibatches: int = 1
-    """the number of minibatches per epoch (ipg_her.py: 1, its batch is one episode per env)"""
+    """the number of minibatches per epoch (1: the batch is one episode per env)"""
     update_epochs: int = 10
     """passes over the batch per update"""
     norm_adv: bool = True
     """normalise the advantages of a batch to zero mean and unit std"""
     kl_target: float = 0.1
-    """d_targ, the mean KL per update the beta rule aims for (ipg_her.py: 0.1, for nu = 1)"""
+    """d_targ, the mean KL per update the beta rule aims for (0.1: a step size for nu = 1)"""
     beta_init: float = 1.0
     """initial KL penalty coefficient beta (the PPO paper: insensitive)"""
     init_log_std: float = 0.0
-    """initial log std of the Gaussian policy (ipg_her.py: 0, goals need wide exploration)"""
+    """initial log std of the Gaussian policy (0: goals need wide exploration)"""
     vf_coef: float = 0.5
     """coefficient of the value loss"""
     max_grad_norm: float = 0.5
@@ -94,7 +94,7 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     """normalise observations (and goals) by running mean and std (saved with the model)"""
     norm_reward: bool = False
     """divide rewards by the running std of the discounted return (not Fetch's 0 / -1)"""
-    eval_freq: int = 2500  # these two: RunArgs' help (common/run.py), ipg_her.py's defaults
+    eval_freq: int = 2500  # these two: RunArgs' help (common/run.py), defaults here
     eval_episodes: int = 20
     diagnostics_every: int = 10
     """log the diagnostics ipg/* every this many updates (0: never; they leave training as is)"""
@@ -119,11 +119,11 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     critic_batch_size: int = 256
     """transitions per critic step"""
     critic_steps: int = 50
-    """critic steps per iteration (ipg_her.py: 50 per 100 env steps, OpenAI's HER recipe)"""
+    """critic steps per iteration (50 per 100 env steps: OpenAI's HER recipe)"""
     hidden: int = 64
     """width of the two hidden layers of every network (policy, V and Q_w)"""
     tau: float = 0.05
-    """soft target update rate of eq. 6, after every critic step (ipg_her.py: 0.05, OpenAI's HER)"""
+    """soft target update rate of eq. 6, after every critic step (0.05: OpenAI's HER)"""
     learning_starts: int = 100
     """environment steps before the critic, and what uses it, starts"""
 

@@ -42,29 +42,29 @@ class Args(RunArgs):
     num_envs: int = 4
     """the number of parallel environments"""
     num_steps: int = 512
-    """steps per env per rollout (batch = num_envs * num_steps; ipg_her.py: 50, one episode)"""
+    """steps per env per rollout (batch = num_envs * num_steps)"""
     learning_rate: float = 3e-4
-    """the learning rate of Adam (ipg_her.py: 1e-3, OpenAI's HER recipe)"""
+    """the learning rate of Adam"""
     anneal_lr: bool = True
     """anneal the learning rate linearly to zero"""
     gamma: float = 0.99
-    """the discount factor gamma (ipg_her.py: 0.98, OpenAI's HER recipe)"""
+    """the discount factor gamma"""
     gae_lambda: float = 0.95
     """lam of GAE (eq. 4)"""
     num_minibatches: int = 32
-    """the number of minibatches per epoch (ipg_her.py: 1, its batch is one episode per env)"""
+    """the number of minibatches per epoch"""
     update_epochs: int = 10
     """passes over the batch per update"""
     norm_adv: bool = True
     """normalise the advantages of a batch to zero mean and unit std"""
     kl_target: float = 0.02
-    """d_targ, the mean KL per update the beta rule aims for (ipg_her.py: 0.1, for nu = 1)"""
+    """d_targ, the mean KL per update the beta rule aims for"""
     beta_init: float = 1.0
     """initial KL penalty coefficient beta (the PPO paper: insensitive)"""
     kl_early_stop: float | None = None
     """stop an update's epochs once the mean KL exceeds this many times kl_target (None: never)"""
     init_log_std: float = -0.5
-    """initial log std of the Gaussian policy (ipg_her.py: 0, goals need wide exploration)"""
+    """initial log std of the Gaussian policy"""
     vf_coef: float = 0.5
     """coefficient of the value loss"""
     max_grad_norm: float = 0.5
