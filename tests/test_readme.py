@@ -1,67 +1,48 @@
-"""The README's file map and reading guide must stay true to the code they describe.
-
-``python tests/test_readme.py`` rewrites the map's line counts from the files.
-"""
+"""The README is the product's first minute: its set-up line and test command are the ones CI
+runs, every file it links exists, and every script it shows a command of accepts that command's
+flags."""
 
 import re
+import shlex
+import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
-
-MAPPED = ("*.py", "common/*.py", "benchmarks/*.py")  # the files the map must list
-
-
-def file_rows() -> list[str]:
-    """The file map's rows: ``| [`path`](path) | what | lines |``, one file each."""
-    lines = (ROOT / "README.md").read_text().splitlines()
-    return [line for line in lines if line.startswith("| [`")]
+README = (ROOT / "README.md").read_text()
 
 
-def test_the_file_map_gives_each_file_its_line_count():
-    rows = file_rows()
-    assert len(rows) >= 9
-    for row in rows:
-        path = re.match(r"\| \[`[^`]+`\]\(([^)]+)\) \|", row)
-        assert path, f"a file-map row must start with | [`file`](file) |: {row}"
-        path = path[1]
-        assert (ROOT / path).is_file(), f"the README's file map lists {path}, which does not exist"
-        stated = int(row.rstrip(" |").rsplit("|", 1)[1])
-        actual = len((ROOT / path).read_text().splitlines())
-        assert stated == actual, (
-            f"README says {stated} lines for {path}, it has {actual} "
-            "(python tests/test_readme.py rewrites the counts)"
-        )
+def bash_blocks() -> list[str]:
+    return re.findall(r"```bash\n(.*?)```", README, flags=re.DOTALL)
 
 
-def test_the_file_map_lists_every_script_and_module():
-    listed = {re.match(r"\| \[`[^`]+`\]\(([^)]+)\)", row)[1] for row in file_rows()}
-    present = {p.relative_to(ROOT).as_posix() for pattern in MAPPED for p in ROOT.glob(pattern)}
-    missing = sorted(p for p in present - listed if not p.endswith("__init__.py"))
-    assert not missing, f"add these to the README's file map: {missing}"
+def test_the_set_up_line_and_the_test_command_are_the_ones_ci_runs():
+    ci = (ROOT / ".ci" / "run").read_text()
+    setup, test = bash_blocks()[0].strip(), next(b for b in bash_blocks() if "pytest" in b).strip()
+    assert setup in ci, f"CI does not run the README's set-up line: {setup}"
+    assert ci.strip().splitlines()[-1] == test, "CI's last line must be the README's test command"
 
 
-def test_the_reading_guide_names_functions_that_exist():
-    """Every `name` in "How to read the code" is a function, class or module constant of the
-    code."""
-    readme = (ROOT / "README.md").read_text()
-    section = readme.split("## How to read the code", 1)[1].split("\n## ", 1)[0]
-    names = {n for n in re.findall(r"`([A-Za-z_]\w*)`", section) if not n.startswith("__")}
-    assert len(names) >= 15, names
-    source = "\n".join(
-        p.read_text() for pattern in MAPPED for p in ROOT.glob(pattern) if p.is_file()
-    )
-    defined = set(re.findall(r"^\s*(?:def|class)\s+(\w+)", source, flags=re.MULTILINE))
-    defined |= set(re.findall(r"^([A-Z_]+) = ", source, flags=re.MULTILINE))  # module constants
-    missing = sorted(names - defined)
-    assert not missing, f"the README's reading guide names what the code does not define: {missing}"
+def test_every_linked_file_exists():
+    links = re.findall(r"\]\(([^)#]+?)(?:#[^)]*)?\)", README)
+    local = [link for link in links if "://" not in link]
+    assert len(local) >= 10, local
+    missing = [link for link in local if not (ROOT / link).exists()]
+    assert not missing, f"the README links files that do not exist: {missing}"
 
 
-if __name__ == "__main__":  # rewrite the file map's counts
-    readme = ROOT / "README.md"
-    lines = readme.read_text().splitlines(keepends=True)
-    for i, line in enumerate(lines):
-        row = re.match(r"(\| \[`[^`]+`\]\(([^)]+)\) \|.*\| )\d+( \|\s*)$", line)
-        if row and (ROOT / row[2]).is_file():
-            count = len((ROOT / row[2]).read_text().splitlines())
-            lines[i] = f"{row[1]}{count}{row[3]}"
-    readme.write_text("".join(lines))
+COMMANDS = [line.split("#")[0].strip() for block in bash_blocks() for line in block.splitlines()
+            if line.startswith("python ") and line.split()[1].endswith(".py")]  # fmt: skip
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_every_script_command_parses(command):
+    """The flags of each ``python script.py ...`` line are the script's: parsed and checked as
+    its ``__main__`` does, nothing run."""
+    from conftest import parse
+
+    script, *argv = shlex.split(command)[1:]
+    sys.path.insert(0, str(ROOT))
+    module = __import__(script.removesuffix(".py"))
+    parse(module, *argv)
