@@ -26,6 +26,8 @@ import zipfile
 import numpy as np
 import torch
 
+from common.cli import flag
+
 FORMAT_VERSION = 2
 SCRIPT = os.path.basename(sys.argv[0])  # the script running, e.g. ipg_her.py
 RESUME_FILE = "resume.pt"
@@ -152,7 +154,7 @@ def load_resume_state(run_dir: str, args) -> dict:
     saved = {f.name: f.default for f in dataclasses.fields(args)} | content["args"]
     if content["script"] != SCRIPT:
         raise CheckpointError(f"{run_dir} is a run of {content['script']}; resume it with that")
-    differ = [f"--{k.replace('_', '-')} {saved.get(k)!r} (now {v!r})"
+    differ = [f"{flag(k)} {saved.get(k)!r} (now {v!r})"
               for k, v in vars(args).items()
               if k not in RESUMABLE_ARGS and saved.get(k) != v]  # fmt: skip
     if getattr(args, "anneal_lr", False) and args.total_timesteps != saved["total_timesteps"]:

@@ -153,10 +153,15 @@ def check_common(args) -> bool:
     minibatches, gamma and lambda in range, and ``--capture-video``'s prerequisites. Returns
     whether the task is a goal task."""
     check_finite(args)
+    check_exp_name(args.exp_name)
     check_positive(args, "num_envs")
     goal_task = check_task(args.env_id, args.num_envs)
-    check_positive(args, "total_timesteps", "num_steps", "num_minibatches")
+    check_positive(args, "total_timesteps", "num_steps", "num_minibatches", "torch_threads")
     check_positive(args, "update_epochs", "eval_episodes", "learning_rate", "kl_target")
+    check_positive(args, "vf_coef", "max_grad_norm")  # <= 0: V unlearnt, reversed or frozen
+    if args.save_freq and not args.save_model:
+        fail(f"--save-freq {args.save_freq} would be ignored (it saves model.pt, which only "
+             "--save-model writes): add --save-model or leave it out")  # fmt: skip
     for name in ("seed", "save_freq", "eval_freq", "eval_workers", "resume_freq", "beta_init"):
         if getattr(args, name) < 0:
             off = " (0 turns it off)" if name.endswith("freq") else ""
@@ -177,6 +182,13 @@ def check_common(args) -> bool:
     if args.capture_video:
         check_video(args.env_id)
     return goal_task
+
+
+def check_exp_name(name: str) -> None:
+    """The middle of a run folder's name ``{env_id}__{exp_name}__{seed}__{time}``: a path in it
+    would put the folder outside --log-dir, under a name report.py cannot read."""
+    if not name or "/" in name or "\0" in name:
+        fail(f"--exp-name {name!r} must be a plain name, without '/'")
 
 
 def refuse(why: str | None) -> None:

@@ -68,11 +68,15 @@ def ignored(args: HerArgs, env_id: str, goal_task: bool) -> dict[str, str]:
 
 
 def check(args: HerArgs, env_id: str, goal_task: bool) -> str | None:
-    """Why HER's flags cannot serve this run, or None: a negative k, a goal task without a
-    batched reward (``reward_refusal``), or one ``hindsight_refusal`` refuses. On a task without
-    goals, says that HER is off."""
+    """Why HER's flags cannot serve this run, or None: a negative k, a goal task with ``gamma``
+    1 (the script's; its critic's target range is infinite), without a batched reward
+    (``reward_refusal``), or one ``hindsight_refusal`` refuses. On a task without goals, says
+    that HER is off."""
     if args.her_n_sampled_goal < 0:
         return f"--her-n-sampled-goal must be non-negative, got {args.her_n_sampled_goal}"
+    if goal_task and args.gamma >= 1:  # sparse_return_range: -1 / (1 - gamma)
+        return (f"--gamma {args.gamma} on a goal task: its returns are bounded by 1 / (1 - gamma), "
+                "which needs gamma < 1 (e.g. 0.98)")  # fmt: skip
     if not goal_task:
         print(f"{env_id} has no goals: hindsight relabelling (HER) is off", flush=True)
     if goal_task and (why := reward_refusal(env_id)):

@@ -11,6 +11,8 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from common.cli import available_memory, goal_space, task_name
+
 
 class ReplayBuffer:
     """Episode replay: transitions of finished episodes, sampled uniformly.
@@ -147,10 +149,21 @@ def sample_replay(rb: ReplayBuffer, norm, reward_scale: float, batch_size: int,
 
 def buffer_refusal(buffer_size: int, num_envs: int, env_id: str) -> str | None:
     """Why a buffer of ``buffer_size`` transitions cannot serve ``env_id``, or None: replay
-    samples finished episodes only, so each env's rows must hold its longest episode."""
-    task = env_id.rpartition(":")[2]  # gymnasium's "module:Task-v0" registers Task-v0
-    rows, longest = buffer_size // num_envs, gym.spec(task).max_episode_steps
+    samples finished episodes only, so each env's rows must hold its longest episode; and its
+    arrays (``HerReplayBuffer``'s on a goal task) must fit in the available memory."""
+    rows, longest = buffer_size // num_envs, gym.spec(task_name(env_id)).max_episode_steps
     if longest and rows < longest:
         return (f"--buffer-size {buffer_size} keeps {rows} steps per env, less than one "
                 f"{env_id} episode ({longest} steps); enlarge it")  # fmt: skip
+    env = gym.make(env_id)
+    space, act_dim = env.observation_space, gym.spaces.flatdim(env.action_space)
+    env.close()
+    obs_dim, goal_dim = gym.spaces.flatdim(space), 0
+    if goal_space(space):  # observation and goals apart (common/her.py)
+        obs_dim, goal_dim = space["observation"].shape[0], space["desired_goal"].shape[0]
+    # float32 obs, next_obs, actions, reward, termination, goals; int64 episode start and length
+    need = rows * num_envs * (4 * (2 * obs_dim + act_dim + 2 + 3 * goal_dim) + 16)
+    if need > (free := available_memory()):
+        return (f"--buffer-size {buffer_size} needs about {need / 2**30:,.1f} GiB of memory, and "
+                f"{free / 2**30:.1f} GiB are available; make it smaller")  # fmt: skip
     return None

@@ -46,8 +46,16 @@ SCRIPTS = {"ppo_kl": ppo_kl, "qprop_ppo": qprop_ppo, "ipg_her": ipg_her,
         (["--total-timestep", "3000"], "unrecognized option --total-timestep, 3000; did you mean"),
         (["--env-id", "Hoper-v5"], "did you mean Hopper-v5?"),
         (["--num-envs", "100000", "--total-timesteps", "1000000000"], "GiB are free"),
+        (["--torch-threads", "0"], "--torch-threads must be positive, got 0"),
+        (["--max-grad-norm", "-1"], "--max-grad-norm must be positive, got -1.0"),
+        (["--max-grad-norm", "0"], "--max-grad-norm must be positive, got 0.0"),
+        (["--vf-coef", "-1"], "--vf-coef must be positive, got -1.0"),
+        (["--save-freq", "1000"], "--save-freq 1000 would be ignored (it saves model.pt, which "
+         "only --save-model writes): add --save-model or leave it out"),
+        (["--exp-name", "../../x"], "--exp-name '../../x' must be a plain name, without '/'"),
+        (["--exp-name", "a/b"], "--exp-name 'a/b' must be a plain name"),
     ],
-)
+)  # fmt: skip
 def test_common_checks(capsys, script, argv, needle):
     """Tasks and values none of the scripts can use (``cli.check_common``)."""
     assert needle in refused(capsys, SCRIPTS[script], *argv)
@@ -98,6 +106,10 @@ UNRECOGNIZED = "unrecognized option {} (--help lists them)"
         ("ipg_her", ["--buffer-size", "10"], "--buffer-size 10 keeps 5 steps per env, less than "
          "one FetchReach-v4 episode (50 steps); enlarge it"),
         ("ipg_her", ["--hidden", "0"], "--hidden must be positive, got 0"),
+        ("ipg_her", ["--gamma", "1"], "--gamma 1.0 on a goal task: its returns are bounded by "
+         "1 / (1 - gamma), which needs gamma < 1 (e.g. 0.98)"),
+        ("ipg_her_recipe", ["--gamma", "1"], "--gamma 1.0 on a goal task: its returns are "
+         "bounded by 1 / (1 - gamma), which needs gamma < 1 (e.g. 0.98)"),
         ("ipg_her", ["--critic-steps", "-1"], "--critic-steps must be non-negative, got -1"),
         ("ipg_her", ["--learning-starts", "-1"], "--learning-starts must be non-negative, got -1"),
         ("ipg_her", ["--target-std", "1"], UNRECOGNIZED.format("--target-std, 1")),  # the recipe's
@@ -177,6 +189,24 @@ def test_checks_do_not_modify_args(module, env_id):
 def test_critic_learning_rate_must_be_positive(capsys, script):
     line = refused(capsys, SCRIPTS[script], "--critic-learning-rate", "-1")
     assert line == "error: --critic-learning-rate must be positive, got -1.0"
+
+
+@pytest.mark.parametrize(
+    "script, argv, needle",
+    [("qprop_ppo", ["--buffer-size", "100000000000"], "--buffer-size 100000000000 needs about "),
+     ("ipg_her", ["--buffer-size", "100000000000"], "--buffer-size 100000000000 needs about ")],
+)  # fmt: skip
+def test_a_buffer_larger_than_the_memory_is_refused(capsys, script, argv, needle):
+    line = refused(capsys, SCRIPTS[script], *argv)
+    assert needle in line and line.endswith("GiB are available; make it smaller"), line
+
+
+def test_check_memory_refuses_what_the_machine_cannot_hold(capsys):
+    cli.check_memory(cli.available_memory() / 2, "--hidden 64")
+    with pytest.raises(SystemExit):
+        cli.check_memory(2 * cli.available_memory(), "--hidden 100000")
+    line = capsys.readouterr().err
+    assert line.startswith("error: --hidden 100000 needs about ") and "are available" in line
 
 
 def test_an_uncreatable_log_dir_is_refused_and_run_folders_are_unique(capsys, tmp_path):

@@ -224,7 +224,11 @@ def test_a_tuple_of_floats_refuses_nan_and_none_stays_allowed(capsys):
     "script, argv, needle",
     [("ppo_kl", ["--learning-rate", "nan"], "--learning-rate must be a finite number, got nan"),
      ("qprop_ppo", ["--beta-init", "inf"], "--beta-init must be a finite number, got inf"),
-     ("ipg_her", ["--nu", "0", "--tau", "0.1"], "--tau would be ignored")],
+     ("ipg_her", ["--nu", "0", "--tau", "0.1"], "--tau would be ignored"),
+     ("ipg_her", ["--gamma", "1"], "--gamma 1.0 on a goal task"),
+     ("ipg_her_recipe", ["--gamma", "1"], "--gamma 1.0 on a goal task"),
+     ("ppo_kl", ["--torch-threads", "0"], "--torch-threads must be positive"),
+     ("ppo_kl", ["--exp-name", "../../x"], "--exp-name '../../x' must be a plain name")],
 )  # fmt: skip
 def test_refusals_end_to_end_leave_no_run_folder(tmp_path, script, argv, needle):
     result = run_script(f"{script}.py", tmp_path, *argv, timeout=120)
@@ -302,6 +306,23 @@ def test_a_task_without_a_time_limit_or_with_goals_not_vectors_is_refused(capsys
                     "max_episode_steps, so that its episodes end")  # fmt: skip
     line = refused(capsys, ipg_her, "--env-id", "MatrixGoal-v0")
     assert line.startswith("error: MatrixGoal-v0's observations are not supported"), line
+
+
+def test_a_goal_task_whose_observations_are_not_its_declared_space_is_refused(capsys):
+    """One reset in the checks, before the run folder exists: a goal 3 long where the space
+    declares 2 would fail deep in the vector env (``Output array is the wrong shape``)."""
+    from tests.point_goal import PointGoal
+
+    class WrongGoal(PointGoal):
+        def _obs(self):
+            return super()._obs() | {"desired_goal": np.zeros(3)}
+
+    if "WrongGoal-v0" not in gym.registry:
+        gym.register("WrongGoal-v0", entry_point=WrongGoal, max_episode_steps=50)
+    assert refused(capsys, ipg_her, "--env-id", "WrongGoal-v0") == (
+        "error: WrongGoal-v0's reset returns an observation 'desired_goal' of shape (3,), its "
+        "observation space declares (2,): make them agree"
+    )
 
 
 def test_capture_video_on_a_task_that_renders_no_frames_says_so(capsys):
