@@ -1,14 +1,14 @@
 """IPG + HER against Stable-Baselines3 DDPG + HER on FetchReach-v4, side by side.
 
 For each seed, one after the other on a quiet machine: ``ipg_her.py`` with the defaults, then
-the anchor script ``sb3_fetchreach.py --algo ddpg_her`` (from ``../shared/anchors``, run with its
-own virtual environment's python, see the README there), both evaluated every 500 steps on 20
-episodes. Then the raw stepping rate (``env_speed.py``) and the main job
-``python ipg_her.py --env-id FetchReach-v4 --seed 1`` as a user runs it. Writes ``results.json``
-and ``table.md`` into ``--out``:
+the anchor script ``sb3_fetchreach.py --algo ddpg_her`` (in ``--anchors``, a folder outside this
+repository, run with the python of a virtual environment that has Stable-Baselines3), both
+evaluated every 500 steps on 20 episodes. Then the raw stepping rate (``env_speed.py``) and the
+main job ``python ipg_her.py --env-id FetchReach-v4 --seed 1`` as a user runs it. Writes
+``results.json`` and ``table.md`` into ``--out``:
 
     python benchmarks/against_sb3.py --anchor-python /tmp/anchor-venv/bin/python \\
-        --seeds 21 22 23 24 25 --out benchmarks/results/against_sb3
+        --anchors /path/to/anchors --seeds 21 22 23 24 25 --out benchmarks/results/against_sb3
 
 Training seconds exclude evaluation for both: ours is ``step / charts/SPS`` (SPS counts training
 time only, and evaluation runs in this process with ``--eval-workers 0``), SB3's is its
@@ -38,8 +38,8 @@ THRESHOLD = 0.9
 class Args:
     anchor_python: str
     """python of the anchors' virtual environment (has stable-baselines3)"""
-    anchors: str = str(ROOT.parent / "shared" / "anchors")
-    """folder of sb3_fetchreach.py and env_speed.py"""
+    anchors: str
+    """folder of the anchor scripts sb3_fetchreach.py and env_speed.py (not in this repository)"""
     seeds: list[int] = field(default_factory=lambda: [21, 22, 23, 24, 25])
     """seeds (not the ones the defaults were tuned on: 1-5)"""
     steps: int = 5000

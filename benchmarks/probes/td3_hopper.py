@@ -4,8 +4,8 @@ Where IPG's off-policy end lags PPO-KL at 300k steps, is that our learner, or wh
 learner does at that budget? TD3 with its author's settings (Fujimoto et al. 2018 and their
 repository: 256x256, Adam 3e-4, batch 256, tau 0.005, gamma 0.99, exploration noise 0.1, policy
 delay 2, target smoothing 0.2 clipped at 0.5) and our rows' 10,000 steps of uniform actions
-first. Needs Stable-Baselines3, so it runs with the anchors' virtual environment
-(``../shared/anchors/README.md``, plus ``gymnasium[mujoco]==1.4.0`` for Hopper's imports):
+first. Needs Stable-Baselines3, so it runs in a virtual environment of its own that has it and
+``gymnasium[mujoco]==1.4.0`` (for Hopper's imports):
 
     OMP_NUM_THREADS=1 /tmp/anchor-venv/bin/python benchmarks/probes/td3_hopper.py --seed 1 \\
         --steps 153600 --out benchmarks/runs/screens/td3
