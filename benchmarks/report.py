@@ -2,21 +2,22 @@
 
     python benchmarks/report.py --suite paper                      # read benchmarks/runs/paper
     python benchmarks/report.py --suite paper --from-export        # redraw from the export
-    python benchmarks/report.py --suite paper --page docs/results.md   # and into the docs site
 
-Writes into ``--results-dir`` (default ``benchmarks/results/{suite}``): ``curves.json`` (a compact
-export of every run's curves, enough to redraw everything), ``results.md`` (the tables and how
+Writes into ``--results-dir`` (default ``benchmarks/results/{suite}``) ``curves.json`` (a compact
+export of every run's curves, enough to redraw everything) and ``results.md`` (the tables and how
 they were measured: among them one per task with the median and IQM of the final evaluation, the
 steps and training time to three levels, and the anchor, the peer to beat, where one is recorded:
 ``ANCHORS`` below, ``benchmarks/results/against_sb3/results.json``, and the anchor's own runs in
-``benchmarks/results/anchors/``) and PNG figures in the shape of the paper's Figures 3-5, the
-anchor drawn in. With ``--page``, the tables and the
-figures go into that Markdown page of the docs site between its markers, and the figures into
-``img/{suite}/`` beside the page (the site serves only files under ``docs/``).
+``benchmarks/results/anchors/``), and PNG figures, the anchor drawn in, into ``--figures-dir``
+(default ``docs/img/{the results folder's name}``: the docs site serves only ``docs/``), linked
+from ``results.md``. What a suite's report shows beyond the common tables (its figures, budgets,
+levels) is its ``Report`` in ``benchmarks/run.py``'s ``SUITES``. Run folders that lack a run of
+the export they would replace are refused (``--keep-export``, ``--replace-export``).
 """
 
 import itertools
 import json
+import os
 import re
 import sys
 import warnings
@@ -31,6 +32,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import tyro  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from benchmarks.run import SUITES, Report  # noqa: E402  each suite's settings, beside its runs
 
 DIAGNOSTICS = ("ipg/effective_nu", "ipg/grad_var", "ipg/grad_var_cv", "ipg/corr_adv_cv",
                "qprop/grad_var", "qprop/grad_var_cv", "qprop/corr_adv_cv")  # fmt: skip
@@ -47,17 +51,11 @@ THRESHOLDS = {
     "HandManipulateBlockRotateZ-v1": ("eval/success_rate", 0.9),
     "PointMaze_Medium-v3": ("eval/success_rate", 0.9),
 }
-BUDGETS = {  # the success table's columns: FetchReach's scale, or the harder Fetch tasks'
-    "push": (100_000, 200_000, 300_000, 500_000, 1_000_000, 1_500_000),
-    "fetch": (100_000, 150_000, 200_000, 300_000, 500_000, 1_000_000),
-}
-LEVELS = {"push": (0.5, 0.9), "fetch": (0.5, 0.7, 0.9)}  # the reach table's success levels
 ANCHORS = {  # (steps, level): first evaluations of the zoo's TQC+HER agents (v1, one env, one seed)
     "FetchPush-v4": ((100_000, 0.5), (200_000, 0.9)),
     "FetchPickAndPlace-v4": ((150_000, 0.5), (350_000, 0.9)),
     "FetchSlide-v4": ((300_000, 0.5),),
 }
-FRESH_SEED = 11  # mixing: the finalists ran on seeds from 11 on, the screens on seeds 1-5
 LABELS = {"ppo_kl": "PPO-KL", "qprop_ppo": "Q-Prop", "ipg": "IPG (no HER)", "ipg_her": "IPG+HER"}
 TASK_LEVELS = {  # the per-task table's levels: evaluation success, or Hopper's evaluation return
     "Hopper-v5": ("eval/episodic_return", (1000.0, 2000.0, 3000.0)),
@@ -65,7 +63,7 @@ TASK_LEVELS = {  # the per-task table's levels: evaluation success, or Hopper's 
 GOAL_LEVELS = ("eval/success_rate", (0.5, 0.7, 0.9))
 GOAL_TASKS = ("Fetch", "Hand", "PointMaze", "AntMaze")  # gymnasium-robotics' goal tasks
 SIDE_BY_SIDE = Path(__file__).parent / "results" / "against_sb3" / "results.json"
-ANCHOR_RUNS = Path(__file__).parent / "results" / "anchors"  # sb3_fetch.py's runs, one folder each
+ANCHOR_RUNS = Path(__file__).parent / "results" / "anchors"  # the anchor's runs, one folder each
 SB3_NAMES = {"sac_her": "SAC+HER", "tqc_her": "TQC+HER", "ddpg_her": "DDPG+HER"}
 
 
@@ -81,7 +79,10 @@ class Args:
     runs_dir: str = "benchmarks/runs"
     """parent of the suite folders written by run.py"""
     results_dir: str = ""
-    """where to write (default benchmarks/results/{suite})"""
+    """where to write the export and results.md (default benchmarks/results/{suite})"""
+    figures_dir: str = ""
+    """where to draw the figures (default docs/img/{the results folder's name}: the docs site serves
+    only docs/, and results.md links them there)"""
     from_export: bool = False
     """redraw from the results folder's curves.json instead of the event files"""
     window: int = 100
@@ -93,7 +94,7 @@ class Args:
     merge_label: str = "earlier code"
     """what the merged groups were measured on (shown in the table's note)"""
     page: str = ""
-    """also write table and figures into this page (docs/results.md), between its suite markers"""
+    """also write the tables and links to the figures into this page, between its suite markers"""
     keep_export: bool = False
     """also keep the runs in the suite's curves.json that the run folders lack (other machines')"""
     replace_export: bool = False
@@ -477,10 +478,10 @@ def load_peers(side_by_side: Path) -> dict:
 
 
 def load_anchor_runs(folder: Path) -> dict:
-    """{env_id: [Peer]}: an anchor run here seed by seed by ``../shared/anchors/sb3_fetch.py``,
-    each run's ``summary.json`` in a folder of its own under ``folder``: each seed's evaluations
-    as its curve, its training seconds to each level (the wall time at that evaluation less every
-    evaluation's so far) and its steps per second of training."""
+    """{env_id: [Peer]}: an anchor run here seed by seed (Stable-Baselines3 with HER and
+    rl-baselines3-zoo's settings), each run's ``summary.json`` in a folder of its own under
+    ``folder``: each seed's evaluations as its curve, its training seconds to each level (the wall
+    time at that evaluation less every evaluation's so far) and its steps per second of training."""
     found = defaultdict(list)
     for path in sorted(folder.glob("*/summary.json")):
         run = json.loads(path.read_text())
@@ -706,8 +707,8 @@ def task_tables_note(groups: dict, peers: dict) -> str:
     if any("zoo settings" in label for label in shown):
         text += (
             " *SB3 ... (anchor; zoo settings)*: Stable-Baselines3 with HER and rl-baselines3-zoo's "
-            "settings, run here on the same seeds and budget and evaluated alike, by "
-            "`../shared/anchors/sb3_fetch.py` (`benchmarks/results/anchors/`); its time is "
+            "settings, run here on the same seeds and budget and evaluated alike (each run's "
+            "summary in `benchmarks/results/anchors/`); its time is "
             "training seconds (its evaluations' subtracted) and its *steps/s* likewise."
         )
     if any("TQC+HER zoo agent" in label for label in shown):
@@ -725,7 +726,7 @@ def mean_and_interval(values: np.ndarray, rng, digits: int) -> str:
     return f"{np.nanmean(values):,.{digits}f} [{lo[0]:,.{digits}f}, {hi[0]:,.{digits}f}]"
 
 
-def finalists_table(groups: dict, rng, first_fresh: int = FRESH_SEED) -> str:
+def finalists_table(groups: dict, rng, first_fresh: int) -> str:
     """The finalists on their fresh seeds only (seeds >= ``first_fresh``, none tuned on): per
     variant, the mean and 95% bootstrap interval over those seeds of the last evaluation at or
     before an early budget (labelled with the step it was at) and at the end, and of the final
@@ -795,62 +796,31 @@ def diagnostics_table(groups: dict) -> str:
 
 def draw_paper_figures(groups: dict, results: Path, rng, peers: dict | None = None) -> list[str]:
     """The paper's Figures 3 (Hopper: length and return), 4 (FetchReach: entropy and return) and
-    5 (success, with FetchReach's anchor among ``peers``)."""
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    plot(
-        axes[0],
-        groups,
-        ["ppo_kl", "qprop_ppo"],
-        "Hopper-v5",
-        "charts/episodic_length",
-        rng,
-        smooth=20,
-    )
-    plot(
-        axes[1],
-        groups,
-        ["ppo_kl", "qprop_ppo"],
-        "Hopper-v5",
-        "charts/episodic_return",
-        rng,
-        smooth=20,
-    )
-    fig.tight_layout()
-    fig.savefig(results / "fig3_hopper.png", dpi=100)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-    plot(
-        axes[0],
-        groups,
-        ["ppo_kl", "qprop_ppo", "ipg_her"],
-        "FetchReach-v4",
-        "charts/policy_entropy",
-        rng,
-    )
-    plot(
-        axes[1],
-        groups,
-        ["ppo_kl", "qprop_ppo", "ipg_her"],
-        "FetchReach-v4",
-        "charts/episodic_return",
-        rng,
-        smooth=10,
-    )
-    fig.tight_layout()
-    fig.savefig(results / "fig4_fetchreach.png", dpi=100)
-    fig, ax = plt.subplots(figsize=(6, 4))
-    plot(
-        ax,
-        groups,
-        ["ppo_kl", "ipg", "ipg_her"],
-        "FetchReach-v4",
-        "eval/success_rate",
-        rng,
-        per_episode=True,
-    )
-    draw_anchors(ax, (peers or {}).get("FetchReach-v4", []), per_episode=True)
-    fig.tight_layout()
-    fig.savefig(results / "fig5_fetchreach_success.png", dpi=100)
-    return ["fig3_hopper.png", "fig4_fetchreach.png", "fig5_fetchreach_success.png"]
+    5 (success, with FetchReach's anchor among ``peers``); none for a task without runs."""
+    tasks, figures = {g.split("__")[1] for g in groups}, []
+
+    def save(fig, name: str) -> None:
+        fig.tight_layout()
+        fig.savefig(results / name, dpi=100)
+        figures.append(name)
+
+    if "Hopper-v5" in tasks:
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+        for ax, tag in zip(axes, ("charts/episodic_length", "charts/episodic_return"), strict=True):
+            plot(ax, groups, ["ppo_kl", "qprop_ppo"], "Hopper-v5", tag, rng, smooth=20)
+        save(fig, "fig3_hopper.png")
+    if "FetchReach-v4" in tasks:
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+        names = ["ppo_kl", "qprop_ppo", "ipg_her"]
+        plot(axes[0], groups, names, "FetchReach-v4", "charts/policy_entropy", rng)
+        plot(axes[1], groups, names, "FetchReach-v4", "charts/episodic_return", rng, smooth=10)
+        save(fig, "fig4_fetchreach.png")
+        fig, ax = plt.subplots(figsize=(6, 4))
+        plot(ax, groups, ["ppo_kl", "ipg", "ipg_her"], "FetchReach-v4", "eval/success_rate", rng,
+             per_episode=True)  # fmt: skip
+        draw_anchors(ax, (peers or {}).get("FetchReach-v4", []), per_episode=True)
+        save(fig, "fig5_fetchreach_success.png")
+    return figures
 
 
 def value_at(run: dict, tag: str, budget: float) -> float:
@@ -941,6 +911,27 @@ def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> 
     return figures
 
 
+def draw_task_figures(groups: dict, results: Path, rng, peers: dict, suite: str,
+                      settings: Report) -> list[str]:  # fmt: skip
+    """One figure per task with every variant of the suite: a goal task's evaluation success (in
+    episodes or steps, mean or median as ``settings`` say) with its anchors among ``peers``, any
+    other task's training return."""
+    figures = []
+    for env_id in sorted({g.split("__")[1] for g in groups}):
+        names = sorted(g.split("__")[0] for g in groups if g.endswith(f"__{env_id}"))
+        fig, ax = plt.subplots(figsize=(7, 4))
+        if reported_by_success(env_id):
+            plot(ax, groups, names, env_id, "eval/success_rate", rng,
+                 per_episode=settings.per_episode, median=settings.median)  # fmt: skip
+            draw_anchors(ax, peers.get(env_id, []), per_episode=settings.per_episode)
+        else:
+            plot(ax, groups, names, env_id, "charts/episodic_return", rng, smooth=20)
+        fig.tight_layout()
+        figures.append(f"{suite}_{env_id}.png")
+        fig.savefig(results / figures[-1], dpi=100)
+    return figures
+
+
 def refuse(message: str) -> int:
     """Bad input or a result at risk: one line on stderr, exit code 2, nothing written."""
     print(f"error: {message}", file=sys.stderr)
@@ -1000,8 +991,9 @@ def main(args: Args) -> int:
                           f"({lost[0]}, ...), so the export is left as it is: --keep-export "
                           "keeps them, --replace-export drops them")  # fmt: skip
     results.mkdir(parents=True, exist_ok=True)
-    figures_dir = page.parent / "img" / args.suite if args.page else results  # the site's files
+    figures_dir = Path(args.figures_dir or f"docs/img/{results.name}")
     figures_dir.mkdir(parents=True, exist_ok=True)
+    settings = SUITES[args.suite].report if args.suite in SUITES else Report()
     if not args.from_export:
         export.write_text(json.dumps(groups, separators=(",", ":")))
     rng = np.random.default_rng(args.seed)
@@ -1009,25 +1001,12 @@ def main(args: Args) -> int:
     for env_id, anchors in load_anchor_runs(Path(args.anchor_runs or ANCHOR_RUNS)).items():
         peers[env_id] += anchors
 
-    if args.suite in ("paper", "quick"):  # quick has the paper's shape
+    if settings.figures == "paper":
         figures = draw_paper_figures(groups, figures_dir, rng, peers)
-    elif args.suite == "mixing":
+    elif settings.figures == "mixing":
         figures = draw_mixing_figures(groups, figures_dir, rng)
-    else:  # one figure per task with every variant of the suite
-        figures = []
-        for env_id in sorted({g.split("__")[1] for g in groups}):
-            names = sorted(g.split("__")[0] for g in groups if g.endswith(f"__{env_id}"))
-            fig, ax = plt.subplots(figsize=(7, 4))
-            if reported_by_success(env_id):
-                per_episode = args.suite not in ("fetch", "goals")  # goals: not all 50-step
-                plot(ax, groups, names, env_id, "eval/success_rate", rng,
-                     per_episode=per_episode, median=args.suite == "fetch")  # fmt: skip
-                draw_anchors(ax, peers.get(env_id, []), per_episode=per_episode)
-            else:
-                plot(ax, groups, names, env_id, "charts/episodic_return", rng, smooth=20)
-            fig.tight_layout()
-            figures.append(f"{args.suite}_{env_id}.png")
-            fig.savefig(figures_dir / figures[-1], dpi=100)
+    else:
+        figures = draw_task_figures(groups, figures_dir, rng, peers, args.suite, settings)
     plt.close("all")
 
     episodes = {}  # evaluation episodes per task, from the runs' own hyperparameters
@@ -1038,7 +1017,7 @@ def main(args: Args) -> int:
     per_task = "; ".join(f"{e}: {' or '.join(sorted(n))}" for e, n in sorted(episodes.items()))
     eval_note = f" (episodes per evaluation: {per_task})" if per_task else ""
     curves = "mean over seeds with a 95% bootstrap confidence band"
-    if args.suite == "fetch":
+    if settings.median:
         curves = "median over seeds, the band from the lowest to the highest seed"
     earlier = sorted({r["measured_on"] for g in groups.values() for r in g.values()
                       if "measured_on" in r})  # fmt: skip
@@ -1064,9 +1043,9 @@ def main(args: Args) -> int:
         )
     per_task = task_tables(groups, peers, args.seed)
     per_task_block = f"{per_task}\n\n{task_tables_note(groups, peers)}" if per_task else ""
-    success = success_table(groups, BUDGETS.get(args.suite, (2500, 5000, 10000, 30000)))
+    success = success_table(groups, settings.budgets)
     success_block = per_task_block + (f"{success}\n\n" if success else "")
-    reach = reach_table(groups, LEVELS[args.suite]) if args.suite in LEVELS else ""
+    reach = reach_table(groups, settings.levels) if settings.levels else ""
     if reach:
         success_block += (
             f"{reach}\n\nSeeds in order of their number; *training h*: hours of training to "
@@ -1074,14 +1053,16 @@ def main(args: Args) -> int:
             "of its sessions: several runs shared two cores); median over all seeds, a seed "
             "that has not reached the level counting as never.\n\n"
         )
-    finalists = finalists_table(groups, rng) if args.suite == "mixing" else ""
+    finalists = (
+        finalists_table(groups, rng, settings.finalists_from) if settings.finalists_from else ""
+    )
     if finalists:
         success_block += (
-            f"{finalists}\n\nThe finalists on fresh seeds only (seeds {FRESH_SEED} and up; the "
-            "screen's seeds are pooled in the rows above): mean over seeds [95% bootstrap "
-            "interval of the mean]. Early budget: the last evaluation at or before 2,500 steps "
-            "on FetchReach, 100,000 on Hopper, labelled with the step it was at (Hopper "
-            "evaluates every 20,480 steps); *final (training)*: as *final* above.\n\n"
+            f"{finalists}\n\nThe finalists on fresh seeds only (seeds {settings.finalists_from} "
+            "and up; the screen's seeds are pooled in the rows above): mean over seeds [95% "
+            "bootstrap interval of the mean]. Early budget: the last evaluation at or before "
+            "2,500 steps on FetchReach, 100,000 on Hopper, labelled with the step it was at "
+            "(Hopper evaluates every 20,480 steps); *final (training)*: as *final* above.\n\n"
         )
     diagnostics = diagnostics_table(groups)
     diagnostics_block = ""
@@ -1110,11 +1091,14 @@ Curves: {curves} (dashed past the shortest seed: the seeds that ran on), Hopper 
 over 20 logged episodes, FetchReach returns over 10. The success table gives, for goal tasks,
 the median [min, max] over seeds of the last evaluation at or before each budget.
 """
-    (results / "results.md").write_text(text)
+    links = lambda where: "\n".join(  # noqa: E731
+        f"![{f}]({os.path.relpath(figures_dir / f, where)})" for f in figures
+    )
+    (results / "results.md").write_text(f"{text}\n{links(results)}\n")
     print(text)
     if args.page:
         before, rest = page.read_text().split(start)
-        images = "\n".join(f"![{f}](img/{args.suite}/{f})" for f in figures)
+        images = links(page.parent)
         note = "<!-- written by benchmarks/report.py: do not edit by hand -->"
         block = f"{start}\n{note}\n{text}\n{images}\n{end}"
         page.write_text(before + block + rest.split(end)[1])

@@ -11,7 +11,8 @@ runs ``pid`` (a later call starts no second copy of a run still running). A run 
 stopped goes on from its resume point if it has one. The call exits non-zero if any run failed.
 Ctrl-C (or SIGTERM) stops the suite: the running scripts save and exit, no other run starts.
 
-The suites (``SUITES``: one row per variant x task, each on its seeds; ``--seeds`` replaces them):
+The suites (``SUITES``: each its seeds, how report.py shows it, and one row per variant x task, on
+the suite's seeds or its own; ``--seeds`` replaces them):
 
 - ``quick``: the paper's grid on tiny budgets, one seed, in seconds.
 - ``paper``: Figure 3 (Hopper: PPO-KL, Q-Prop) and Figures 4-5 (FetchReach: PPO-KL, Q-Prop, IPG
@@ -48,7 +49,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import tyro
 
@@ -151,11 +152,36 @@ TINY = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4", "--up
 TINY_IPG = ("--total-timesteps", "300", "--critic-steps", "4", "--eval-freq", "100",
             "--eval-episodes", "2")  # fmt: skip
 
-# suite: (its seeds, its rows). A row is (name, script, env_id, flags) or, on seeds of its own,
-# (name, script, env_id, flags, seeds); in the push suite "{steps}" and "{k}" stand for
-# --push-steps and the same in thousands.
-SUITES: dict[str, tuple[tuple[int, ...], list[tuple]]] = {
-    "paper": ((1, 2, 3, 4, 5), [
+
+@dataclass(frozen=True)
+class Report:
+    """How benchmarks/report.py shows a suite: its figures and the tables beyond the common ones."""
+
+    figures: Literal["paper", "mixing", "per task"] = "per task"
+    """the paper's Figures 3-5, the mixing study's (success or return against nu), or one figure
+    per task with every variant of the suite"""
+    per_episode: bool = True
+    """a goal task's success figure against episodes (Fetch's 50 steps each), else against steps"""
+    median: bool = False
+    """curves: the median seed and the band from the lowest to the highest, else the mean and its
+    95% bootstrap band"""
+    budgets: tuple[int, ...] = (2_500, 5_000, 10_000, 30_000)
+    """the success table's columns: evaluation success at these steps"""
+    levels: tuple[float, ...] = ()
+    """the reach table's success levels, per seed the steps and hours to each (none: no table)"""
+    finalists_from: int = 0
+    """the finalists table: each variant on seeds from this one on, the fresh ones (0: no table)"""
+
+
+class Suite(NamedTuple):
+    seeds: tuple[int, ...]  # each row's, unless it has its own
+    report: Report
+    rows: list[tuple]  # (name, script, env_id, flags) or, on seeds of its own, (..., seeds)
+
+
+# In the push suite "{steps}" and "{k}" stand for --push-steps and the same in thousands.
+SUITES: dict[str, Suite] = {
+    "paper": Suite((1, 2, 3, 4, 5), Report(figures="paper"), [
         ("ppo_kl", PPO, HOPPER, ()),
         ("qprop_ppo", QPROP, HOPPER, ()),
         ("ppo_kl", PPO, REACH, FETCH_EVAL),
@@ -163,7 +189,7 @@ SUITES: dict[str, tuple[tuple[int, ...], list[tuple]]] = {
         ("ipg", IPG, REACH, ("--no-her",)),
         ("ipg_her", IPG, REACH, ()),
     ]),
-    "ablations": ((1, 2, 3), [
+    "ablations": Suite((1, 2, 3), Report(), [
         *[(f"qprop_{eta}_{norm}", QPROP, HOPPER, ("--eta-mode", eta, "--normalization", norm))
           for eta in ("conservative", "aggressive", "ones") for norm in ("paper", "unbiased")],
         *[(f"ipg_her_nu{nu}", IPG, REACH, ("--nu", nu)) for nu in NUS[:4]],
@@ -173,12 +199,13 @@ SUITES: dict[str, tuple[tuple[int, ...], list[tuple]]] = {
         *[(f"ipg_her_{s}", IPG, REACH, ("--her-goal-selection-strategy", s))
           for s in ("final", "episode")],
     ]),
-    "eta": ((1, 2, 3), [
+    "eta": Suite((1, 2, 3), Report(), [
         ("ppo_kl_300k", PPO, HOPPER, K300),
         *[(f"qprop_{eta}_300k", QPROP, HOPPER, ("--eta-mode", eta, *K300))
           for eta in ("batch-conservative", "conservative")],
     ]),
-    "mixing": ((1, 2, 3, 4, 5), [
+    # the screen on seeds 1-5, the finalists also on fresh seeds from 11 on (--seeds)
+    "mixing": Suite((1, 2, 3, 4, 5), Report(figures="mixing", finalists_from=11), [
         *[(f"ipg_her_nu{nu}_{batch}" + ("_cv" if cv else ""), IPG, REACH,
            ("--nu", nu, *(flags if cv or nu != "0.0" else critic_free(flags)),
             *(("--use-cv",) if cv else ())))
@@ -203,7 +230,7 @@ SUITES: dict[str, tuple[tuple[int, ...], list[tuple]]] = {
         ("qprop_batch-conservative_critic2048_300k", QPROP, HOPPER,
          ("--critic-steps", "2048", "--learning-starts", "10000", *K300)),
     ]),
-    "hopper": ((4, 5, 6), [  # the regime was screened on seed 1
+    "hopper": Suite((4, 5, 6), Report(), [  # the regime was screened on seed 1
         ("ppo_kl_300k", PPO, HOPPER, K300),
         *[(f"ipg_td3_nu{nu}_300k", RECIPE, HOPPER, ("--nu", nu, *TD3)) for nu in ("1.0", "0.5")],
         ("ipg_td3_bounds_nu1.0_300k", RECIPE, HOPPER,
@@ -223,12 +250,16 @@ SUITES: dict[str, tuple[tuple[int, ...], list[tuple]]] = {
         ("ipg_td3_nu1.0_1M", RECIPE, HOPPER,
          ("--nu", "1.0", "--total-timesteps", "1000000", *TD3[len(K300) :]), (7,)),
     ]),
-    "push": ((1, 2, 3), [  # the paper's IPG+HER, FetchReach's defaults, on Push (no recipe)
+    # the paper's IPG+HER, FetchReach's defaults, on Push (no recipe)
+    "push": Suite((1, 2, 3), Report(budgets=(100_000, 200_000, 300_000, 500_000, 1_000_000,
+                                             1_500_000), levels=(0.5, 0.9)), [
         ("ipg_her_{k}k", IPG, PUSH, PUSH_BUDGET),
         ("ipg_her_{k}k_qsample", IPG, PUSH, (*PUSH_BUDGET, "--q-bar", "sample")),
         ("ipg_her_{k}k_nu0.8", IPG, PUSH, (*PUSH_BUDGET, "--nu", "0.8")),
     ]),
-    "fetch": ((), [  # every row on seeds of its own, fresh ones unless said
+    # every row on seeds of its own, fresh ones unless said; figures in steps, median seed
+    "fetch": Suite((), Report(per_episode=False, median=True, levels=(0.5, 0.7, 0.9),
+                              budgets=(100_000, 150_000, 200_000, 300_000, 500_000, 1_000_000)), [
         ("ipg_her_300k", RECIPE, PUSH, ("--total-timesteps", "300000", *FETCH_EVERY),
          (4, 5, 6, 7, 8)),
         ("ipg_her_1critic_300k", RECIPE, PUSH,
@@ -256,7 +287,9 @@ SUITES: dict[str, tuple[tuple[int, ...], list[tuple]]] = {
                               ("_eq10", ("--normalization", "unbiased")))
           for nu in ("0.8", "0.5")],
     ]),
-    "goals": ((301, 302, 303), [  # the recipe's defaults on goal tasks no run was tuned on
+    # the recipe's defaults on goal tasks no run was tuned on; figures in steps (a maze's
+    # episode is not 50 steps)
+    "goals": Suite((301, 302, 303), Report(per_episode=False), [
         ("ipg_her_300k", RECIPE, "HandReach-v3", ("--total-timesteps", "300000", *FETCH_EVERY)),
         ("ipg_her_300k_std03", RECIPE, "HandReach-v3",  # chosen on seed 11
          ("--total-timesteps", "300000", "--target-std", "0.3", *FETCH_EVERY)),
@@ -269,7 +302,7 @@ SUITES: dict[str, tuple[tuple[int, ...], list[tuple]]] = {
         ("ipg_her_300k_gamma0995", RECIPE, "PointMaze_Medium-v3",  # chosen on seeds 11-12
          ("--total-timesteps", "300000", "--gamma", "0.995", *FETCH_EVERY)),
     ]),
-    "quick": ((1,), [
+    "quick": Suite((1,), Report(figures="paper"), [  # the paper's grid, tiny budgets
         ("ppo_kl", PPO, HOPPER, ("--total-timesteps", "512", *TINY)),
         ("qprop_ppo", QPROP, HOPPER,
          ("--total-timesteps", "512", "--learning-starts", "256", "--critic-steps", "4", *TINY)),
@@ -285,7 +318,7 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     """``SUITES[suite]`` row by row, each row on its seeds (its own, else the suite's), or on
     ``seeds`` when given, of which a row of one seed of its own (a long run) takes the first. A
     run an earlier row gives already is not repeated. ``push_steps``: the push suite's budget."""
-    suite_seeds, rows = SUITES[suite]
+    suite_seeds, _, rows = SUITES[suite]
     fill = lambda text: text.format(steps=push_steps, k=push_steps // 1000)
     runs = []
     for name, script, env_id, flags, *own in rows:

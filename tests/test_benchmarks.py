@@ -22,21 +22,13 @@ def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path
     assert run.main(args) == 0  # resume: nothing left to do
     assert f"0 to run, {len(runs)} already finished" in capsys.readouterr().out
 
-    results = tmp_path / "results"
-    assert (
-        report.main(
-            report.Args(suite="quick", runs_dir=str(tmp_path / "runs"), results_dir=str(results))
-        )
-        == 0
-    )
-    for name in (
-        "fig3_hopper.png",
-        "fig4_fetchreach.png",
-        "fig5_fetchreach_success.png",
-        "results.md",
-        "curves.json",
-    ):
+    results, figures = tmp_path / "results", tmp_path / "img"
+    folders = dict(results_dir=str(results), figures_dir=str(figures))
+    assert report.main(report.Args(suite="quick", runs_dir=str(tmp_path / "runs"), **folders)) == 0
+    for name in ("results.md", "curves.json"):
         assert (results / name).stat().st_size > 0, name
+    for name in ("fig3_hopper.png", "fig4_fetchreach.png", "fig5_fetchreach_success.png"):
+        assert (figures / name).stat().st_size > 0, name
     text = (results / "results.md").read_text()
     # the Hopper PPO-KL row's final return: the mean of the event file's last 100 training episodes
     row = next(line for line in text.splitlines() if line.startswith("| Hopper-v5 | PPO-KL |"))
@@ -60,7 +52,7 @@ def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path
         <= 0.005
     )
     # the export alone redraws the same table
-    assert report.main(report.Args(suite="quick", results_dir=str(results), from_export=True)) == 0
+    assert report.main(report.Args(suite="quick", from_export=True, **folders)) == 0
     assert (results / "results.md").read_text() == text
 
 
@@ -258,3 +250,44 @@ def test_every_suite_command_passes_its_scripts_checks(monkeypatch):
             except SystemExit:
                 refused.append(f"{suite}/{r.folder}")
     assert not refused, refused
+
+
+def test_every_committed_export_redraws_its_results_md_and_its_figures(tmp_path):
+    """Each results folder's curves.json, through report.py --from-export with the suite its
+    results.md names, gives that results.md byte for byte, its figures linked from it under
+    docs/img/{folder} (committed there once, none beside the export)."""
+    import shutil
+
+    from conftest import ROOT
+
+    for export in sorted((ROOT / "benchmarks" / "results").glob("*/curves.json")):
+        name, committed = export.parent.name, (export.parent / "results.md").read_text()
+        (suite,) = set(re.findall(r"benchmarks/run\.py --suite (\w+)", committed))
+        results, figures = (
+            tmp_path / "benchmarks" / "results" / name,
+            tmp_path / "docs" / "img" / name,
+        )
+        results.mkdir(parents=True)
+        shutil.copy(export, results)
+        args = report.Args(suite=suite, results_dir=str(results), figures_dir=str(figures),
+                           from_export=True)  # fmt: skip
+        assert report.main(args) == 0, name
+        assert (results / "results.md").read_text() == committed, name
+        drawn = sorted(p.name for p in figures.iterdir())
+        assert drawn == sorted(p.name for p in (ROOT / "docs" / "img" / name).glob("*.png")), name
+        links = re.findall(r"^!\[(.+)\]\(\.\./\.\./\.\./docs/img/(.+)/\1\)$", committed, re.M)
+        assert sorted(links) == [(f, name) for f in drawn], name
+        assert not list(export.parent.glob("*.png")), name
+
+
+def test_benchmarks_and_tests_name_no_path_outside_the_repository():
+    """A clone runs on its own: no code, probe or test reads a folder beside the repository (the
+    anchors' scripts are passed as arguments where needed) or a machine's absolute path."""
+    from conftest import ROOT
+
+    files = [*(ROOT / "benchmarks").rglob("*.py"), *(ROOT / "tests").rglob("*.py")]
+    outside = re.compile(r"\.\./shared|/work/|ROOT\.parent\b")
+    found = [f"{f.relative_to(ROOT)}:{i}" for f in files
+             for i, line in enumerate(f.read_text().splitlines(), 1)
+             if outside.search(line) and "re.compile" not in line]  # fmt: skip
+    assert not found, found

@@ -1,5 +1,6 @@
 """benchmarks/report.py's statistics against values computed by hand, on hand-made event files."""
 
+import dataclasses
 import json
 import re
 import subprocess
@@ -31,6 +32,13 @@ def write_run(runs_dir, name, env_id, seed, returns=(), successes=(), eval_episo
     writer.add_scalar("charts/SPS", 1000, 100 * max(len(returns), 1))
     writer.close()
     (folder / "exit_code").write_text("0\n")
+
+
+def report_args(tmp_path, suite: str, **flags) -> report.Args:
+    """report.py's arguments, every folder under ``tmp_path``: runs/, results/ and img/ (the
+    figures), unless ``flags`` say otherwise."""
+    folders = {"runs_dir": "runs", "results_dir": "results", "figures_dir": "img"}
+    return report.Args(suite=suite, **{k: str(tmp_path / v) for k, v in folders.items()} | flags)
 
 
 def test_steps_to_threshold_uses_full_windows_and_counts_unreached_seeds(tmp_path):
@@ -110,8 +118,7 @@ def test_success_table_columns_and_episode_counts_come_from_the_runs(tmp_path, c
     runs = tmp_path / "runs" / "quick"
     for seed in (1, 2):
         write_run(runs, "ipg_her", "FetchReach-v4", seed, [-50] * 3, [0.0, 0.5, 1.0], 7)
-    assert report.main(report.Args(suite="quick", runs_dir=str(tmp_path / "runs"),
-                                   results_dir=str(tmp_path / "results"))) == 0  # fmt: skip
+    assert report.main(report_args(tmp_path, "quick")) == 0
     text = (tmp_path / "results" / "results.md").read_text()
     header = next(line for line in text.splitlines() if "eval success @" in line)
     assert re.findall(r"@ ([\d,]+) steps", header) == ["1,500"]  # the runs stop at 1,500 steps
@@ -147,8 +154,8 @@ def test_page_naming_no_file_fails_before_reading_or_writing_anything():
 
 def test_page_gets_the_block_between_its_markers_and_the_figures_beside_it(tmp_path):
     """--page: the text around the markers stays, the block between them is replaced, and the
-    figures go into img/{suite}/ beside the page (the docs site serves only docs/), linked
-    relative to it; the results folder keeps the export and results.md."""
+    figures (in --figures-dir, here img/quick/ beside the page) are linked relative to it; the
+    results folder keeps the export and results.md."""
     runs = tmp_path / "runs" / "quick"
     write_run(runs, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
     docs = tmp_path / "docs"
@@ -156,8 +163,7 @@ def test_page_gets_the_block_between_its_markers_and_the_figures_beside_it(tmp_p
     page = docs / "results.md"
     start, end = "<!-- results:quick:start -->", "<!-- results:quick:end -->"
     page.write_text(f"# Results\n\nbefore\n{start}\nold block\n{end}\nafter\n")
-    args = report.Args(suite="quick", runs_dir=str(tmp_path / "runs"),
-                       results_dir=str(tmp_path / "results"), page=str(page))  # fmt: skip
+    args = report_args(tmp_path, "quick", page=str(page), figures_dir=str(docs / "img" / "quick"))
     assert report.main(args) == 0
     text = page.read_text()
     assert text.startswith("# Results\n\nbefore\n" + start) and text.endswith(end + "\nafter\n")
@@ -175,12 +181,9 @@ def test_rows_merged_from_an_earlier_export_are_marked(tmp_path):
     old, new = tmp_path / "runs" / "old", tmp_path / "runs" / "paper"
     write_run(old, "algo", "Hopper-v5", 1, [100.0] * 10)
     write_run(old, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 0.0])
-    assert report.main(report.Args(suite="old", runs_dir=str(tmp_path / "runs"),
-                                   results_dir=str(tmp_path / "old_results"))) == 0  # fmt: skip
+    assert report.main(report_args(tmp_path, "old", results_dir=str(tmp_path / "old"))) == 0
     write_run(new, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [1.0, 1.0])
-    args = report.Args(suite="paper", runs_dir=str(tmp_path / "runs"),
-                       results_dir=str(tmp_path / "results"),
-                       merge_export=str(tmp_path / "old_results" / "curves.json"),
+    args = report_args(tmp_path, "paper", merge_export=str(tmp_path / "old" / "curves.json"),
                        merge_label="commit abc")  # fmt: skip
     assert report.main(args) == 0
     text = (tmp_path / "results" / "results.md").read_text()
@@ -195,18 +198,17 @@ def test_keep_export_adds_new_seeds_to_the_runs_of_an_earlier_machine(tmp_path):
     import shutil
 
     runs, results = tmp_path / "runs" / "mixing", tmp_path / "results"
-    args = dict(suite="mixing", runs_dir=str(tmp_path / "runs"), results_dir=str(results))
     write_run(runs, "algo", "Hopper-v5", 1, [100.0] * 10)
     write_run(runs, "algo", "Hopper-v5", 2, [300.0] * 10)
-    assert report.main(report.Args(**args)) == 0
+    assert report.main(report_args(tmp_path, "mixing")) == 0
     shutil.rmtree(runs)  # the machine is gone, the export stays
     write_run(runs, "algo", "Hopper-v5", 2, [500.0] * 10)  # seed 2 re-run, seed 3 new
     write_run(runs, "algo", "Hopper-v5", 3, [900.0] * 10)
-    assert report.main(report.Args(**args, keep_export=True)) == 0
+    assert report.main(report_args(tmp_path, "mixing", keep_export=True)) == 0
     text = (results / "results.md").read_text()
     assert "| Hopper-v5 | algo | 3 | 500 ± 400 |" in text  # seeds 1 (100), 2 (500), 3 (900)
     assert "1 of the 3 runs were read from this suite's own earlier export" in text
-    assert report.main(report.Args(**args, replace_export=True)) == 0  # the run folders only
+    assert report.main(report_args(tmp_path, "mixing", replace_export=True)) == 0  # the folders
     assert "| Hopper-v5 | algo | 2 | 700 ± 283 |" in (results / "results.md").read_text()
 
 
@@ -225,9 +227,7 @@ def test_unfinished_runs_are_left_out_or_marked_with_the_step_they_reached(tmp_p
         (folder / "exit_code").unlink() if code is None else (folder / "exit_code").write_text(code)
 
     def results(**flags) -> str:
-        args = report.Args(suite="push", runs_dir=str(tmp_path / "runs"),
-                           results_dir=str(tmp_path / "results"), **flags)  # fmt: skip
-        assert report.main(args) == 0
+        assert report.main(report_args(tmp_path, "push", **flags)) == 0
         return (tmp_path / "results" / "results.md").read_text()
 
     assert "| IPG+HER | 1 |" in results() and "‡" not in results()
@@ -235,7 +235,9 @@ def test_unfinished_runs_are_left_out_or_marked_with_the_step_they_reached(tmp_p
     assert "| IPG+HER ‡ | 2 |" in text and "ipg_her seed 2 at 1,000" in text  # not seed 3
     assert "(1/2 seeds; 1 not yet, still running)" in text  # seed 1 reached 0.9, seed 2 not yet
     write_run(runs, "short", "FetchReach-v4", 1, [-50] * 3, [0.0, 0.4], total=1000)
-    monkeypatch.setitem(report.BUDGETS, "push", (500, 1000, 1500))
+    push = report.SUITES["push"]
+    budgets = dataclasses.replace(push.report, budgets=(500, 1000, 1500))
+    monkeypatch.setitem(report.SUITES, "push", push._replace(report=budgets))
     short = next(line for line in results(include_unfinished=True).splitlines()
                  if line.startswith("| FetchReach-v4 | short | 0"))  # fmt: skip
     assert short.split(" | ")[2:] == ["0.00 [0.00, 0.00]", "0.40 [0.40, 0.40]", "- |"]
@@ -304,14 +306,14 @@ def test_finalists_table_reads_fresh_seeds_only_with_bootstrap_intervals(tmp_pat
         )
     write_run(runs, "ipg_her_nu1.0_b100", "FetchReach-v4", 11, [-50] * 15, [1.0, 1.0])
     groups = report.collect(runs, WINDOW)
-    rows = report.finalists_table(groups, np.random.default_rng(0)).splitlines()
+    rows = report.finalists_table(groups, np.random.default_rng(0), 11).splitlines()
     assert len(rows) == 3, "nu 1.0 has one fresh seed: no interval, no row"
     cells = rows[2].split(" | ")
     assert cells[2] == "3 (11-13)"
     assert cells[3] == "@ 2,500: 0.20 [0.20, 0.20]", "2,500 steps: the same in all"
     mean, lo, hi = map(float, re.findall(r"[0-9.]+", cells[4]))
     assert mean == 0.6 and 0.4 <= lo < mean < hi <= 0.8
-    assert report.finalists_table({}, np.random.default_rng(0)) == ""
+    assert report.finalists_table({}, np.random.default_rng(0), 11) == ""
 
 
 def test_early_evaluation_is_labelled_with_the_step_it_was_at():
@@ -323,7 +325,7 @@ def test_early_evaluation_is_labelled_with_the_step_it_was_at():
         "final": value,
     }
     groups = {"ipg_nu0.0_300k__Hopper-v5": {"11": run(20_480, 500.0), "12": run(20_480, 700.0)}}
-    row = report.finalists_table(groups, np.random.default_rng(0)).splitlines()[2]
+    row = report.finalists_table(groups, np.random.default_rng(0), 11).splitlines()[2]
     assert row.split(" | ")[3].startswith("@ 81,920: 600 ["), row
     runs = [run(20_480, 1.0), run(25_000, 1.0)]
     assert report.steps_at(runs, "eval/episodic_return", 100_000) == "81,920-100,000"
@@ -332,15 +334,16 @@ def test_early_evaluation_is_labelled_with_the_step_it_was_at():
 
 def test_fetch_suite_report_draws_each_task_with_its_anchor_and_three_reach_levels(tmp_path):
     """The fetch suite: one figure per task in environment steps with the TQC+HER agent's
-    points on it, and a reach table at 0.5, 0.7 and 0.9."""
+    points on it, and a reach table at 0.5, 0.7 and 0.9. The figures are drawn into
+    --figures-dir only, each once, and results.md links them from where it is."""
     runs = tmp_path / "runs" / "fetch"
     for seed in (4, 5):
         write_run(runs, "ipg_her_300k", "FetchPush-v4", seed, [-50] * 15, [0.0, 0.6, 0.8, 0.95])
-    args = report.Args(suite="fetch", runs_dir=str(tmp_path / "runs"),
-                       results_dir=str(tmp_path / "results"))  # fmt: skip
-    assert report.main(args) == 0
-    assert (tmp_path / "results" / "fetch_FetchPush-v4.png").stat().st_size > 0
+    assert report.main(report_args(tmp_path, "fetch")) == 0
+    assert (tmp_path / "img" / "fetch_FetchPush-v4.png").stat().st_size > 0
+    assert not list((tmp_path / "results").glob("*.png"))
     text = (tmp_path / "results" / "results.md").read_text()
+    assert text.endswith("\n![fetch_FetchPush-v4.png](../img/fetch_FetchPush-v4.png)\n")
     assert "first eval >= 0.7" in text and "| 2,000 |" in text  # 0.9 first at 2,000 steps
     assert report.ANCHORS["FetchPush-v4"] == ((100_000, 0.5), (200_000, 0.9))  # the issue's table
 
@@ -494,10 +497,9 @@ def test_the_anchor_is_drawn_in_and_given_its_row(tmp_path, monkeypatch):
     monkeypatch.setattr(report, "draw_anchors", lambda ax, p, **kw: drawn.append((p, kw)))
     runs = tmp_path / "runs" / "quick"
     write_run(runs, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
-    args = report.Args(suite="quick", runs_dir=str(tmp_path / "runs"),
-                       results_dir=str(tmp_path / "results"),
-                       side_by_side=str(tmp_path / "side.json"))  # fmt: skip
-    assert report.main(args) == 0
+    assert (
+        report.main(report_args(tmp_path, "quick", side_by_side=str(tmp_path / "side.json"))) == 0
+    )
     assert drawn == [(peers["FetchReach-v4"], {"per_episode": True})]  # the success figure
     text = (tmp_path / "results" / "results.md").read_text()
     row = next(line for line in text.splitlines() if line.startswith("| SB3 DDPG+HER"))
@@ -543,10 +545,7 @@ def test_an_anchor_run_here_gets_its_row_its_times_and_its_speed(tmp_path, monke
     drawn = []
     monkeypatch.setattr(report, "draw_anchors", lambda ax, p, **kw: drawn.append((p, kw)))
     write_run(tmp_path / "runs" / "goals", "ipg_her", "HandReach-v3", 301, [-50] * 3, [0.0, 1.0])
-    args = report.Args(suite="goals", runs_dir=str(tmp_path / "runs"),
-                       results_dir=str(tmp_path / "results"),
-                       anchor_runs=str(tmp_path / "anchors"))  # fmt: skip
-    assert report.main(args) == 0
+    assert report.main(report_args(tmp_path, "goals", anchor_runs=str(tmp_path / "anchors"))) == 0
     assert [p.label for p in drawn[0][0]] == ["SB3 SAC+HER (anchor; zoo settings)"]
     assert drawn[0][1] == {"per_episode": False}  # steps: a maze's episode is 600, not 50
     text = (tmp_path / "results" / "results.md").read_text()
@@ -592,17 +591,17 @@ def test_a_report_with_no_runs_refuses_and_leaves_the_export_as_it_is(tmp_path):
     """The issue's command, ``--runs-dir EMPTY`` (a suite folder with no run in it): one error
     line, a non-zero exit, and the export, its results.md and its figures untouched."""
     write_run(tmp_path / "runs" / "paper", "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
-    results = tmp_path / "results"
-    args = dict(suite="paper", runs_dir=str(tmp_path / "runs"), results_dir=str(results))
-    assert report.main(report.Args(**args)) == 0
-    before = snapshot(results)
-    assert results / "curves.json" in before and results / "results.md" in before
+    assert report.main(report_args(tmp_path, "paper")) == 0
+    before = snapshot(tmp_path)
+    assert {tmp_path / "results" / f for f in ("curves.json", "results.md")} <= set(before)
+    assert tmp_path / "img" / "fig5_fetchreach_success.png" in before
     (tmp_path / "empty" / "paper").mkdir(parents=True)
     cmd = [sys.executable, "benchmarks/report.py", "--suite", "paper", "--runs-dir",
-           str(tmp_path / "empty"), "--results-dir", str(results)]  # fmt: skip
+           str(tmp_path / "empty"), "--results-dir", str(tmp_path / "results"),
+           "--figures-dir", str(tmp_path / "img")]  # fmt: skip
     result = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert_clean_error(result, "no finished run", str(tmp_path / "empty" / "paper"))
-    assert snapshot(results) == before
+    assert snapshot(tmp_path) == before
 
 
 def test_a_report_with_fewer_runs_than_its_export_refuses_unless_told_to_replace(tmp_path, capsys):
@@ -613,17 +612,16 @@ def test_a_report_with_fewer_runs_than_its_export_refuses_unless_told_to_replace
     runs, results = tmp_path / "runs" / "paper", tmp_path / "results"
     for seed in (1, 2):
         write_run(runs, "ipg_her", "FetchReach-v4", seed, [-50] * 3, [0.0, 1.0])
-    args = dict(suite="paper", runs_dir=str(tmp_path / "runs"), results_dir=str(results))
-    assert report.main(report.Args(**args)) == 0
-    before = snapshot(results)
+    assert report.main(report_args(tmp_path, "paper")) == 0
     shutil.rmtree(runs / "ipg_her__FetchReach-v4__seed2")
+    before = snapshot(tmp_path)
     capsys.readouterr()
-    assert report.main(report.Args(**args)) == 2
+    assert report.main(report_args(tmp_path, "paper")) == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "1 of the 2 runs" in errors[0], errors
     assert "ipg_her__FetchReach-v4 seed 2" in errors[0] and "--replace-export" in errors[0]
-    assert snapshot(results) == before
-    assert report.main(report.Args(**args, replace_export=True)) == 0
+    assert snapshot(tmp_path) == before
+    assert report.main(report_args(tmp_path, "paper", replace_export=True)) == 0
     export = json.loads((results / "curves.json").read_text())
     assert list(export["ipg_her__FetchReach-v4"]) == ["1"]
 
@@ -654,3 +652,20 @@ def test_a_damaged_event_file_is_named_in_a_warning(tmp_path, capsys, damage):
         assert 0 < len(groups["2"]["charts/episodic_return"]) < 40 and groups["2"]["final"] == 200
     else:
         assert list(groups) == ["1"] and "left out" in warnings[0]
+
+
+def test_a_suites_report_settings_are_its_entry_in_run_py_not_branches_on_its_name(tmp_path):
+    """report.py never asks which suite it reads: what one shows beyond the common tables (its
+    figures, budgets, levels) is the Report beside its runs in run.py's SUITES."""
+    source = (ROOT / "benchmarks" / "report.py").read_text()
+    assert not re.findall(r"suite\s*(?:==|!=|not in|in)\s*[(\"']", source)
+    reach = {}
+    for suite in ("goals", "fetch"):  # the same run: only fetch's Report asks for a reach table
+        write_run(tmp_path / "runs" / suite, "ipg_her", "FetchPush-v4", 1, [-50] * 3, [0.0, 0.6])
+        args = report_args(tmp_path, suite, results_dir=str(tmp_path / suite))
+        assert report.main(args) == 0
+        reach[suite] = (
+            "steps (training h) per seed" in (tmp_path / suite / "results.md").read_text()
+        )
+    assert reach == {"goals": False, "fetch": True}
+    assert report.SUITES["goals"].report.levels == () and report.SUITES["fetch"].report.levels
