@@ -7,8 +7,8 @@ evaluated every 500 steps on 20 episodes. Then the raw stepping rate (``env_spee
 main job ``python ipg_her.py --env-id FetchReach-v4 --seed 1`` as a user runs it. Writes
 ``results.json`` and ``table.md`` into ``--out``:
 
-    python benchmarks/against_sb3.py --anchor-python /tmp/anchor-venv/bin/python \\
-        --anchors /path/to/anchors --seeds 21 22 23 24 25 --out benchmarks/results/against_sb3
+    python benchmarks/against_sb3.py --anchor-python $ANCHOR_PY \\
+        --anchors $ANCHORS --seeds 21 22 23 24 25 --out benchmarks/results/against_sb3
 
 Training seconds exclude evaluation for both: ours is ``step / charts/SPS`` (SPS counts training
 time only, and evaluation runs in this process with ``--eval-workers 0``), SB3's is its

@@ -7,7 +7,7 @@ delay 2, target smoothing 0.2 clipped at 0.5) and our rows' 10,000 steps of unif
 first. Needs Stable-Baselines3, so it runs in a virtual environment of its own that has it and
 ``gymnasium[mujoco]==1.4.0`` (for Hopper's imports):
 
-    OMP_NUM_THREADS=1 /tmp/anchor-venv/bin/python benchmarks/probes/td3_hopper.py --seed 1 \\
+    OMP_NUM_THREADS=1 $ANCHOR_PY benchmarks/probes/td3_hopper.py --seed 1 \\
         --steps 153600 --out benchmarks/runs/screens/td3
 
 Writes ``DIR/td3_seed{S}.json`` (every training episode's end step and return, the wall time)
