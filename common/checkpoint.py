@@ -15,6 +15,7 @@ previous file intact.
 """
 
 import contextlib
+import copy
 import dataclasses
 import io
 import os
@@ -174,6 +175,71 @@ def restore(target, saved) -> None:
         target.bit_generator.state = saved
     else:
         target.load_state_dict(saved)
+
+
+class EnvsState:
+    """A vector env's state as plain values, so that a resumed run goes on mid-episode where it
+    stopped, as if never stopped: per env, each layer's (the wrappers' and the task's) numbers,
+    arrays and random generators, a MuJoCo task's physics (``mjSTATE_INTEGRATION``), and the
+    vector env's last observations. What a task keeps elsewhere (a list, a dict) is not saved."""
+
+    def __init__(self, envs):
+        self.envs = envs
+
+    def state_dict(self) -> dict:
+        layers = [[_layer_state(layer) for layer in _layers(env)] for env in self.envs.envs]
+        return {"layers": layers, "observations": copy.deepcopy(self.envs._observations)}
+
+    def load_state_dict(self, state: dict) -> None:
+        for env, saved in zip(self.envs.envs, state["layers"], strict=True):
+            for layer, values in zip(_layers(env), saved, strict=True):
+                for name, value in values.items():
+                    _restore_value(layer, name, value)
+        self.envs._observations = state["observations"]
+
+    def observations(self):
+        """The observations the envs stopped in, as a step returns them."""
+        return copy.deepcopy(self.envs._observations)
+
+
+def _layers(env) -> list:
+    """An env's wrappers, outermost first, then the task itself."""
+    layers = [env]
+    while hasattr(layers[-1], "env"):
+        layers.append(layers[-1].env)
+    return layers
+
+
+def _layer_state(layer) -> dict:
+    state = {}
+    for name, value in vars(layer).items():
+        if isinstance(value, np.random.Generator):
+            state[name] = {"generator": value.bit_generator.state}
+        elif type(value).__name__ == "MjData":  # the physics, with its model beside it
+            import mujoco
+
+            spec = mujoco.mjtState.mjSTATE_INTEGRATION
+            physics = np.empty(mujoco.mj_stateSize(layer.model, spec))
+            mujoco.mj_getState(layer.model, value, physics, spec)
+            state[name] = {"mujoco": physics}
+        elif isinstance(value, bool | int | float | np.ndarray | np.generic | None):
+            state[name] = copy.deepcopy(value)
+    return state
+
+
+def _restore_value(layer, name: str, value) -> None:
+    if isinstance(value, dict) and value.keys() == {"generator"}:
+        generator = getattr(layer, name, None) or np.random.default_rng()
+        generator.bit_generator.state = value["generator"]
+        setattr(layer, name, generator)
+    elif isinstance(value, dict) and value.keys() == {"mujoco"}:
+        import mujoco
+
+        data = getattr(layer, name)
+        mujoco.mj_setState(layer.model, data, value["mujoco"], mujoco.mjtState.mjSTATE_INTEGRATION)
+        mujoco.mj_forward(layer.model, data)
+    else:
+        setattr(layer, name, value)
 
 
 def load(path: str) -> dict:

@@ -18,9 +18,24 @@ import warnings
 from collections.abc import Callable
 from typing import NoReturn, TypeVar
 
-import gymnasium as gym
-import numpy as np
-import tyro
+INTERRUPTED = "interrupted; nothing was written"
+
+
+def interrupted(kind, error, traceback) -> None:
+    """``sys.excepthook``: Ctrl-C before a run is under way (imports, checks, loading a resume
+    point) or an evaluation ends in one line instead of a traceback (the exit code stays Ctrl-C's,
+    130); anything else as usual."""
+    if issubclass(kind, KeyboardInterrupt):
+        print(INTERRUPTED, file=sys.stderr)
+    else:
+        sys.__excepthook__(kind, error, traceback)
+
+
+sys.excepthook = interrupted  # before the slow imports below
+
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+import tyro  # noqa: E402
 
 A = TypeVar("A")
 

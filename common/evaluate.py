@@ -20,6 +20,7 @@ evaluated ones: the same episodes, not the same numbers.
 """
 
 import collections
+import contextlib
 import copy
 import multiprocessing
 import os
@@ -28,16 +29,21 @@ import sys
 import threading
 import time
 from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Annotated
 
+# isort: split
+from common import cli  # first: Ctrl-C while torch loads is one line (cli.interrupted)
+
+# isort: split
 import gymnasium as gym
 import numpy as np
 import torch
 import torch.nn.functional as F
 import tyro
 
-from common import checkpoint, cli, seeding
+from common import checkpoint, seeding
 from common.normalizer import InputNormalizer, RunningMeanStd
 from common.rollout import success_of
 
@@ -174,7 +180,8 @@ def load_policy(path: str, env_id: str | None = None) -> Policy:
 
 
 def _worker_init(parent: int) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the training process's to handle
+    for s in (signal.SIGINT, signal.SIGHUP):  # Ctrl-C, a closed terminal: the training process's
+        signal.signal(s, signal.SIG_IGN)
     torch.set_num_threads(1)
     threading.Thread(target=_exit_with, args=(parent,), daemon=True).start()
 
@@ -186,6 +193,17 @@ def _exit_with(parent: int) -> None:
     os._exit(1)
 
 
+@contextlib.contextmanager
+def blocked_signals():
+    """Ctrl-C and a closed terminal's SIGHUP blocked in this thread, and so in the processes it
+    starts from their first instruction (they are the training process's to handle)."""
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGHUP})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+
 class BackgroundEvaluator:
     """Evaluations that run in a worker process while training goes on (``workers=1``), or at
     once in this process (``workers=0``): the results are the same, only the wall time differs.
@@ -193,36 +211,52 @@ class BackgroundEvaluator:
     ``submit(step, evaluate, *args)`` runs ``evaluate(*args)`` on a deep copy of ``args`` taken
     now (a snapshot of the policy at ``step``); ``finished()`` returns the evaluations that are
     done, in the order they were submitted, as ``(step, result)``; ``finished(wait=True)`` waits
-    for all of them. ``evaluate`` must be a module-level function (the worker imports it).
+    for all of them. ``evaluate`` must be a module-level function (the worker imports it). A
+    worker that dies (kill -9) costs no evaluation: ``warn`` says so once, and they all run in
+    this process from then on.
     """
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, warn=lambda line: print(line, file=sys.stderr)):
         ctx = multiprocessing.get_context("spawn")  # no fork of a process running torch
-        self.pool = (
-            ProcessPoolExecutor(workers, ctx, _worker_init, (os.getpid(),)) if workers else None
-        )
-        self.pending = collections.deque()
+        self.pool = None
+        if workers:  # its resource tracker starts now: blind to the terminal's signals too
+            with blocked_signals():
+                self.pool = ProcessPoolExecutor(workers, ctx, _worker_init, (os.getpid(),))
+        self.pending, self.warn = collections.deque(), warn
 
     def submit(self, step: int, evaluate, *args) -> None:
-        args = copy.deepcopy(args)
-        if self.pool is None:
+        args, future = copy.deepcopy(args), None
+        if self.pool is not None:  # the first submit starts the worker, signals blocked in it
+            try:
+                with blocked_signals():
+                    future = self.pool.submit(evaluate, *args)
+            except BrokenProcessPool:
+                self.lost_worker()
+        if future is None:
             future = Future()
             future.set_result(evaluate(*args))
-        else:  # the first submit starts the worker: Ctrl-C blocked in it from its first instruction
-            blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-            try:
-                future = self.pool.submit(evaluate, *args)
-            finally:
-                signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
-        self.pending.append((step, future))
+        self.pending.append((step, future, evaluate, args))
 
     def finished(self, wait: bool = False) -> list[tuple[int, object]]:
         done = []
         while self.pending and (wait or self.pending[0][1].done()):
-            step, future = self.pending[0]
-            done.append((step, future.result()))  # Ctrl-C here leaves it pending: close() drops it
+            step, future, evaluate, args = self.pending[0]
+            try:
+                result = future.result()  # Ctrl-C here leaves it pending: close() drops it
+            except BrokenProcessPool:
+                self.lost_worker()
+                result = evaluate(*args)
+            done.append((step, result))
             self.pending.popleft()
         return done
+
+    def lost_worker(self) -> None:
+        """The worker died: say so once, evaluate in this process from now on."""
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+            self.pool = None
+            self.warn("warning: the evaluation worker died; evaluations run in the training "
+                      "process from now on (training goes on, slower)")  # fmt: skip
 
     def close(self, at_once: bool = False) -> None:
         """Stop the worker: ``at_once`` (an interrupted run) or with evaluations pending, end the
@@ -274,8 +308,9 @@ def stop(signum, frame):
 
 if __name__ == "__main__":
     signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGHUP, stop)
     try:
         sys.exit(main())
     except KeyboardInterrupt as e:  # one line, the shell's exit code: 130 (Ctrl-C), 143 (kill)
-        print("evaluation interrupted; nothing was written", file=sys.stderr)
+        print(cli.INTERRUPTED, file=sys.stderr)
         sys.exit(128 + (e.args[0] if e.args else signal.SIGINT))

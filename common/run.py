@@ -74,15 +74,23 @@ class RunArgs:
 BAR = "{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]"  # the rate: ours, in the postfix
 
 
+STOPS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # Ctrl-C, kill, a closed terminal
+# write errors that stop a run in one line: a full disk, a folder made read-only
+WRITE_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EPERM, errno.EROFS)
+
+
 class Terminated(KeyboardInterrupt):
-    """SIGTERM (``kill``), raised like Ctrl-C's KeyboardInterrupt so that a run ends cleanly."""
+    """SIGTERM (``kill``) or SIGHUP (a closed terminal), raised like Ctrl-C's KeyboardInterrupt
+    so that a run ends cleanly; ``args[0]``: the signal."""
 
 
 def raise_terminated(signum, frame) -> NoReturn:
-    """The first SIGTERM stops the run; later ones are ignored, so they cannot cut its clean-up
-    short (kill -9 on benchmarks/run.py can send two: one per runner thread that dies)."""
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    raise Terminated()
+    """The first SIGTERM or SIGHUP stops the run; later ones are ignored, so they cannot cut its
+    clean-up short (kill -9 on benchmarks/run.py can send two: one per runner thread that
+    dies)."""
+    for s in STOPS[1:]:
+        signal.signal(s, signal.SIG_IGN)
+    raise Terminated(signum)
 
 
 def lock(run_dir: str):
@@ -177,22 +185,22 @@ class Run:
     def hold_signals(self) -> None:
         """From the moment the run folder exists until the run is under way (``with run:``), a
         signal is held, then stops the run as mid-run: one clean stop, whenever it comes."""
-        self.old_handlers = {
-            s: signal.signal(s, self.hold) for s in (signal.SIGINT, signal.SIGTERM)
-        }
+        self.old_handlers = {s: signal.signal(s, self.hold) for s in STOPS}
         threading.excepthook = quiet_writer_thread
 
     def hold(self, signum, frame) -> None:
         self.stop_signal = signum
 
     def start(self, envs, model: dict, training: dict, **scalars):
-        """Register what is saved, restore it all on ``--resume``, reset the environments.
+        """Register what is saved, restore it all on ``--resume`` (the environments too, mid-
+        episode), else reset the environments.
         Returns the first raw observation, then the ``scalars`` (resumed or as given)."""
         self.envs, self.model, self.scalars = envs, model, scalars
         streams = dict(eval_rng=self.streams.eval_rng, diagnostics_rng=self.diagnostics_rng,
                        diagnostics_generator=self.diagnostics_generator)  # fmt: skip
         self.parts = model | training | streams
-        reset_seeds = self.streams.env_seeds
+        self.envs_state = checkpoint.EnvsState(envs)
+        raw_obs = None
         if self.resumed:
             r, path = self.resumed, os.path.join(self.dir, checkpoint.RESUME_FILE)
             if missing := [name for name in self.parts if name not in r]:
@@ -200,31 +208,36 @@ class Run:
             try:
                 for name, part in self.parts.items():
                     checkpoint.restore(part, r[name])
-            except (KeyError, ValueError, RuntimeError) as e:  # shapes or fields of another run
+                if "envs" in r:  # the envs go on mid-episode, as if the run had never stopped
+                    self.envs_state.load_state_dict(r["envs"])
+                    raw_obs = self.envs_state.observations()
+            except (KeyError, ValueError, RuntimeError, TypeError) as e:  # another run's
                 cli.fail(f"{path} does not fit this run ({type(e).__name__}: {str(e)[:200]})")
-            for part in self.parts.values():
-                if hasattr(part, "end_episodes"):  # replay: the envs restart with new episodes
-                    part.end_episodes()
+            if "envs" not in r:  # a resume point of earlier code: new episodes
+                for part in self.parts.values():
+                    if hasattr(part, "end_episodes"):
+                        part.end_episodes()
+                raw_obs, _ = envs.reset(seed=seeding.resume_env_seeds(
+                    self.args.seed, self.args.num_envs, r["global_step"]))  # fmt: skip
             checkpoint.set_rng_states(r["rng"])
             self.scalars = {key: r["scalars"].get(key, value) for key, value in scalars.items()}
             self.global_step, self.train_time = r["global_step"], r["train_time"]
             self.last_eval, self.last_save = r["last_eval"], r["last_save"]
             self.eval_seeds, self.recent_success = r["eval_seeds"], r["recent_success"]
             self.first_iteration, self.last_resume = r["iteration"] + 1, self.global_step
-            reset_seeds = seeding.resume_env_seeds(
-                self.args.seed, self.args.num_envs, r["global_step"]
-            )
             print(f"resuming run folder: {self.dir} after step {self.global_step:,}", flush=True)
             self.writer = writer_for(self.dir, purge_step=self.global_step + 1)
         else:  # the hyperparameters as a text table, as CleanRL does
             self.writer = writer_for(self.dir)
             table = "\n".join(f"|{key}|{value}|" for key, value in vars(self.args).items())
             self.writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n{table}")
-        self.evaluator = BackgroundEvaluator(self.args.eval_workers)
+        self.evaluator = BackgroundEvaluator(self.args.eval_workers,
+                                             lambda line: self.print(line, sys.stderr))  # fmt: skip
         self.progress = tqdm(total=self.args.total_timesteps, initial=self.global_step,
                              unit=" steps", disable=not sys.stdout.isatty(), dynamic_ncols=True,
                              bar_format=BAR)  # fmt: skip
-        raw_obs, _ = envs.reset(seed=reset_seeds)
+        if raw_obs is None:
+            raw_obs, _ = envs.reset(seed=self.streams.env_seeds)
         return raw_obs, *self.scalars.values()
 
     def iterations(self, num_iterations: int):
@@ -298,7 +311,8 @@ class Run:
             self.save()
         if resume_due:
             checkpoint.save_resume_state(
-                self.dir, args, **self.parts, rng=checkpoint.rng_states(), scalars=self.scalars,
+                self.dir, args, **self.parts, envs=self.envs_state, rng=checkpoint.rng_states(),
+                scalars=self.scalars,
                 iteration=self.iteration, global_step=step, train_time=self.train_time,
                 last_eval=self.last_eval, last_save=self.last_save,
                 recent_success=self.recent_success, eval_seeds=self.eval_seeds,
@@ -326,32 +340,32 @@ class Run:
 
     def __enter__(self):
         signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C and kill end the run
-        signal.signal(signal.SIGTERM, raise_terminated)  # cleanly from here on, through __exit__
+        for s in STOPS[1:]:  # cleanly from here on, through __exit__
+            signal.signal(s, raise_terminated)
         if self.stop_signal is not None:  # held since the run folder appeared: stop as mid-run
-            error = Terminated() if self.stop_signal == signal.SIGTERM else KeyboardInterrupt()
+            stop = self.stop_signal
+            error = KeyboardInterrupt() if stop == signal.SIGINT else Terminated(stop)
             self.__exit__(type(error), error, None)
         return self
 
     def __exit__(self, kind, error, traceback) -> NoReturn:
-        """Ctrl-C or kill: logs kept, exit 130 or 143; a NaN loss or a full disk: one error line,
-        exit 1. Either way the model is saved (``--save-model``, if finite), everything is closed,
-        and the last line names the checkpoints on disk."""
-        for s in (signal.SIGINT, signal.SIGTERM):  # a second Ctrl-C cannot cut the clean-up short
+        """Ctrl-C, kill or a closed terminal: logs kept, exit 130, 143 or 129; a NaN loss, a full
+        disk or a folder turned read-only: one error line, exit 1. Either way the model is saved
+        (``--save-model``, if finite), everything is closed, and the last line names the
+        checkpoints on disk. Further signals stay ignored until the process has exited, so that
+        its exit's own clean-up (multiprocessing's temporary folder) runs to its end."""
+        for s in STOPS:  # a second Ctrl-C cannot cut the clean-up short, nor the exit after it
             signal.signal(s, signal.SIG_IGN)
         self.progress.close()  # the bar stays above the closing lines
         self.progress.disable = True
         code, lines = (0 if error is None else None), []  # None: a bug, traceback after cleanup
         if isinstance(error, KeyboardInterrupt):
             lines.append(f"interrupted at step {self.global_step:,}; logs are kept in {self.dir}")
-            code = 128 + (signal.SIGTERM if isinstance(error, Terminated) else signal.SIGINT)
+            code = 128 + (error.args[0] if isinstance(error, Terminated) else signal.SIGINT)
         elif isinstance(error, FloatingPointError):
             lines.append(f"error: {error}")
             code = 1
-        elif isinstance(error, OSError) and error.errno in (
-            errno.ENOSPC,
-            errno.EDQUOT,
-            errno.EFBIG,
-        ):
+        elif isinstance(error, OSError) and error.errno in WRITE_ERRORS:
             lines.append(f"error: {disk_error(error, self.dir)}")
             code = 1
         if self.args.save_model and not isinstance(error, FloatingPointError):
@@ -368,11 +382,11 @@ class Run:
             lines.append(f"error: {disk_error(e, self.dir)}")
         for line in lines:
             say(line, sys.stderr if line.startswith(("error", "interrupted")) else sys.stdout)
-        for s, handler in self.old_handlers.items():
-            signal.signal(s, handler)
         threading.excepthook = threading.__excepthook__
         self.lock.close()
         if code is None:
+            for s, handler in self.old_handlers.items():  # a bug: its traceback, as usual
+                signal.signal(s, handler)
             return False
         seconds = time.time() - self.start_time
         summary = f"{'stopped' if code else 'done'}: {self.global_step:,} steps in {seconds:.0f} s"

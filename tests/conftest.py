@@ -4,6 +4,7 @@ functions."""
 
 import inspect
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -81,6 +82,16 @@ def refused(capsys, module, *argv: str) -> str:
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: "), lines
     return lines[0]
+
+
+@pytest.fixture(autouse=True)
+def signal_handlers():
+    """A script run in-process leaves its stop signals ignored (common/run.py: until its exit);
+    the next test gets pytest's handlers back."""
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    yield
+    for s, handler in saved.items():
+        signal.signal(s, handler)
 
 
 @pytest.fixture(scope="session")

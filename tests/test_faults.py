@@ -16,7 +16,7 @@ import time
 
 import pytest
 import torch
-from conftest import ROOT, assert_clean_error, run_dirs, run_script
+from conftest import ROOT, assert_clean_error, run_dirs, run_script, scalars
 
 from common import checkpoint, evaluate, run
 
@@ -28,8 +28,8 @@ ENV = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}
 def start(log_dir, *flags, **popen):
     """``ipg_her.py`` in the background, its output piped; waits for its ``run folder:`` line."""
     cmd = [sys.executable, str(ROOT / "ipg_her.py"), "--log-dir", str(log_dir), *flags]
-    popen = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True} | popen
-    proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, **popen)
+    popen = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True, "env": ENV} | popen
+    proc = subprocess.Popen(cmd, cwd=ROOT, **popen)
     first = proc.stdout.readline()
     assert first.startswith("run folder: "), first + proc.communicate()[1]
     return proc, first.removeprefix("run folder: ").strip()
@@ -284,4 +284,141 @@ def test_an_interrupted_evaluation_is_one_line(finished_run, sig, code):
     time.sleep(12)  # imported, evaluating 100,000 episodes (minutes)
     proc.send_signal(sig)
     err = proc.communicate(timeout=60)[1]
-    assert proc.returncode == code and err == "evaluation interrupted; nothing was written\n", err
+    assert proc.returncode == code and err == "interrupted; nothing was written\n", err
+
+
+def until(proc, needle: str) -> str:
+    """Read ``proc``'s output up to a line holding ``needle``; that line."""
+    while needle not in (line := proc.stdout.readline()):
+        assert line, f"the run ended before {needle!r}: " + proc.communicate()[1]
+    return line
+
+
+def own_tmp(tmp_path) -> dict:
+    """A TMPDIR of the test's own, to see what multiprocessing leaves in it (pymp-*)."""
+    (tmp_path / "tmp").mkdir()
+    return {**ENV, "TMPDIR": str(tmp_path / "tmp")}
+
+
+def test_a_closed_terminal_stops_the_run_as_kill_does(tmp_path):
+    """SIGHUP (to the whole process group, as a closing terminal sends it): the closing line,
+    exit 129, model.pt saved, no leaked semaphore, no multiprocessing temporary folder left."""
+    proc, run_dir = start(tmp_path / "runs", "--env-id", "FetchReach-v4", "--total-timesteps",
+                          "1000000", "--eval-freq", "200", "--eval-episodes", "2", "--save-model",
+                          env=own_tmp(tmp_path), start_new_session=True)  # fmt: skip
+    until(proc, "evaluation of step")  # the worker is up
+    os.killpg(proc.pid, signal.SIGHUP)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 129, err
+    assert err.startswith("interrupted at step ") and "Traceback" not in err, err
+    assert "leaked" not in err, err
+    assert out.strip().splitlines()[-1].startswith("stopped: ") and "model.pt of step" in out
+    assert checkpoint.load(os.path.join(run_dir, "model.pt"))["agent"]
+    assert not list((tmp_path / "tmp").glob("pymp-*"))
+
+
+def test_more_ctrl_c_during_the_clean_up_cannot_cut_it_short(tmp_path):
+    """Ctrl-C, then again and again while the run saves and exits: one clean stop, nothing
+    ignored in an exit handler, no temporary folder left."""
+    proc, run_dir = start(tmp_path / "runs", "--env-id", "FetchReach-v4", "--total-timesteps",
+                          "1000000", "--eval-freq", "200", "--eval-episodes", "2", "--save-model",
+                          env=own_tmp(tmp_path))  # fmt: skip
+    until(proc, "evaluation of step")
+    for _ in range(60):  # 3 s of Ctrl-C
+        if proc.poll() is not None:
+            break
+        proc.send_signal(signal.SIGINT)
+        time.sleep(0.05)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    assert err.startswith("interrupted at step "), err
+    assert checkpoint.load(os.path.join(run_dir, "model.pt"))["agent"]
+    assert not list((tmp_path / "tmp").glob("pymp-*"))
+
+
+def evaluation_worker(pid: int) -> int:
+    """The pid of ``pid``'s evaluation worker (spawned by multiprocessing), once it runs."""
+    deadline = time.time() + 60
+    while time.time() < deadline:
+        for kid in children(pid):
+            with open(f"/proc/{kid}/cmdline", "rb") as f:
+                if b"spawn_main" in f.read():
+                    return kid
+        time.sleep(0.2)
+    raise AssertionError("no evaluation worker started")
+
+
+def test_training_goes_on_when_the_evaluation_worker_is_killed(tmp_path):
+    """kill -9 of the worker: one warning line, every evaluation still logged, exit 0."""
+    proc, run_dir = start(tmp_path, "--env-id", "FetchReach-v4", "--total-timesteps", "2000",
+                          "--eval-freq", "200", "--eval-episodes", "2")  # fmt: skip
+    until(proc, "evaluation of step 200 ")
+    os.kill(evaluation_worker(proc.pid), signal.SIGKILL)
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err and err.count("evaluation worker died") == 1, err
+    steps = [step for step, _ in scalars(run_dir)["eval/success_rate"]]
+    assert steps == list(range(200, 2001, 200)), steps
+
+
+def test_a_run_folder_turned_read_only_stops_in_one_line(monkeypatch, tmp_path, capsys):
+    """As a full disk: the write that fails (here the second resume point, EPERM as under
+    chattr +i) stops the run with one error line, exit 1; the first resume point stays."""
+    real_open, written = open, []
+
+    def read_only(name, mode="r", *args, **kwargs):
+        if "w" in mode and str(name).endswith("resume.pt.tmp"):
+            written.append(name)
+            if len(written) > 1:
+                raise PermissionError(errno.EPERM, os.strerror(errno.EPERM), str(name))
+        return real_open(name, mode, *args, **kwargs)
+
+    argv = ["ppo_kl.py", "--log-dir", str(tmp_path), "--num-envs", "2", "--num-steps", "64",
+            "--total-timesteps", "1024", "--num-minibatches", "2", "--update-epochs", "1",
+            "--eval-freq", "0", "--eval-workers", "0", "--resume-freq", "256"]  # fmt: skip
+    monkeypatch.setattr(checkpoint, "open", read_only, raising=False)
+    monkeypatch.setattr(sys, "argv", argv)
+    with pytest.raises(SystemExit) as stop:
+        runpy.run_path(str(ROOT / "ppo_kl.py"), run_name="__main__")
+    assert stop.value.code == 1
+    captured = capsys.readouterr()
+    errors = [line for line in captured.err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "Traceback" not in captured.err, captured.err
+    assert "could not write" in errors[0] and "resume.pt: Operation not permitted" in errors[0]
+    (run_dir,) = run_dirs(tmp_path)
+    assert checkpoint._read(str(run_dir / "resume.pt"))["global_step"] == 256
+
+
+@pytest.mark.parametrize("delay", [0.1, 0.5, 1.0, 2.0])
+def test_ctrl_c_while_evaluate_starts_is_one_line(finished_run, delay):
+    """Ctrl-C at any moment of ``python -m common.evaluate``'s start (torch's import, the task's
+    checks, loading): one line, Ctrl-C's exit code."""
+    cmd = [sys.executable, "-m", "common.evaluate", str(finished_run), "--episodes", "100000",
+           "--seed", "1"]  # fmt: skip
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, stderr=subprocess.PIPE, text=True)
+    time.sleep(delay)
+    proc.send_signal(signal.SIGINT)
+    err = proc.communicate(timeout=60)[1]
+    assert proc.returncode in (130, -signal.SIGINT), err
+    assert err == "interrupted; nothing was written\n", err
+
+
+DRIVER = """import runpy, sys
+import torch
+def interrupted(*args, **kwargs):
+    raise KeyboardInterrupt  # Ctrl-C while resume.pt loads
+torch.load = interrupted
+sys.argv = {argv!r}
+runpy.run_path({script!r}, run_name="__main__")
+"""
+
+
+def test_ctrl_c_while_a_resume_point_loads_is_one_line(finished_run, tmp_path):
+    argv = ["ipg_her.py", "--log-dir", str(tmp_path), *TINY, "--save-model", "--resume-freq",
+            "100", "--resume", str(finished_run)]  # fmt: skip
+    driver = DRIVER.format(argv=argv, script=str(ROOT / "ipg_her.py"))
+    result = subprocess.run([sys.executable, "-c", driver], cwd=ROOT, env=ENV,
+                            capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert result.returncode in (130, -signal.SIGINT), result.stderr
+    assert result.stderr == "interrupted; nothing was written\n", result.stderr
