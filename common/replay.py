@@ -73,8 +73,9 @@ class ReplayBuffer:
         self._sampleable = None
 
     def end_episodes(self) -> None:
-        """Open the unfinished episodes to sampling as if truncated now (a resumed run restarts
-        its environments, so they never go on); their last next_obs stays the bootstrap state."""
+        """Open the unfinished episodes to sampling as if truncated now (a resume point of
+        earlier code, without the environments' state, restarts them, so they never go on);
+        their last next_obs stays the bootstrap state."""
         self._finish_episodes(self.current_length > 0)
 
     def state_dict(self) -> dict:

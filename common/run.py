@@ -372,7 +372,10 @@ class Run:
             try:
                 lines.append(f"model saved to {self.save()}")
             except (OSError, FloatingPointError) as e:
-                lines.append(f"error: model.pt not written: {disk_error(e, self.dir)}")
+                if code == 1 and isinstance(error, OSError):  # the same fault: one line
+                    lines[-1] += "; model.pt not written either"
+                else:
+                    lines.append(f"error: model.pt not written: {disk_error(e, self.dir)}")
                 code = code or 1
         self.evaluator.close(at_once=error is not None)
         self.envs.close()

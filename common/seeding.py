@@ -46,7 +46,8 @@ def streams(seed: int, num_envs: int) -> Streams:
 
 
 def resume_env_seeds(seed: int, num_envs: int, step: int) -> list[int]:
-    """Reset seeds for the training envs of a run resumed at ``step``: a stream of its own
-    (spawn key 7, then the step), apart from the seven above and from every other resume point."""
+    """Reset seeds for the training envs of a run resumed at ``step`` from a resume point of
+    earlier code, which holds no environment state (common/run.py): a stream of its own (spawn key
+    7, then the step), apart from the seven above and from every other resume point."""
     sequence = np.random.SeedSequence(seed, spawn_key=(7, step))
     return [int(s) for s in sequence.generate_state(num_envs)]

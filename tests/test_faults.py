@@ -364,11 +364,12 @@ def test_training_goes_on_when_the_evaluation_worker_is_killed(tmp_path):
 
 def test_a_run_folder_turned_read_only_stops_in_one_line(monkeypatch, tmp_path, capsys):
     """As a full disk: the write that fails (here the second resume point, EPERM as under
-    chattr +i) stops the run with one error line, exit 1; the first resume point stays."""
+    chattr +i) stops the run with one error line, exit 1, which says that model.pt could not be
+    written either; the first resume point stays."""
     real_open, written = open, []
 
     def read_only(name, mode="r", *args, **kwargs):
-        if "w" in mode and str(name).endswith("resume.pt.tmp"):
+        if "w" in mode and str(name).endswith(".tmp"):
             written.append(name)
             if len(written) > 1:
                 raise PermissionError(errno.EPERM, os.strerror(errno.EPERM), str(name))
@@ -376,7 +377,8 @@ def test_a_run_folder_turned_read_only_stops_in_one_line(monkeypatch, tmp_path, 
 
     argv = ["ppo_kl.py", "--log-dir", str(tmp_path), "--num-envs", "2", "--num-steps", "64",
             "--total-timesteps", "1024", "--num-minibatches", "2", "--update-epochs", "1",
-            "--eval-freq", "0", "--eval-workers", "0", "--resume-freq", "256"]  # fmt: skip
+            "--eval-freq", "0", "--eval-workers", "0", "--resume-freq", "256",
+            "--save-model"]  # fmt: skip
     monkeypatch.setattr(checkpoint, "open", read_only, raising=False)
     monkeypatch.setattr(sys, "argv", argv)
     with pytest.raises(SystemExit) as stop:
@@ -385,7 +387,9 @@ def test_a_run_folder_turned_read_only_stops_in_one_line(monkeypatch, tmp_path, 
     captured = capsys.readouterr()
     errors = [line for line in captured.err.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and "Traceback" not in captured.err, captured.err
-    assert "could not write" in errors[0] and "resume.pt: Operation not permitted" in errors[0]
+    assert "could not write" in errors[0] and errors[0].endswith(
+        "resume.pt: Operation not permitted; model.pt not written either"
+    ), errors[0]
     (run_dir,) = run_dirs(tmp_path)
     assert checkpoint._read(str(run_dir / "resume.pt"))["global_step"] == 256
 
