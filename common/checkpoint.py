@@ -180,8 +180,9 @@ def restore(target, saved) -> None:
 class EnvsState:
     """A vector env's state as plain values, so that a resumed run goes on mid-episode where it
     stopped, as if never stopped: per env, each layer's (the wrappers' and the task's) numbers,
-    arrays and random generators, a MuJoCo task's physics (``mjSTATE_INTEGRATION``), and the
-    vector env's last observations. What a task keeps elsewhere (a list, a dict) is not saved."""
+    arrays (and dicts of arrays) and random generators, a MuJoCo task's physics
+    (``mjSTATE_INTEGRATION``), and the vector env's last observations. What a task keeps in
+    other containers (a list) is not saved."""
 
     def __init__(self, envs):
         self.envs = envs
@@ -215,14 +216,13 @@ def _layer_state(layer) -> dict:
     for name, value in vars(layer).items():
         if isinstance(value, np.random.Generator):
             state[name] = {"generator": value.bit_generator.state}
-        elif type(value).__name__ == "MjData":  # the physics, with its model beside it
-            import mujoco
-
-            spec = mujoco.mjtState.mjSTATE_INTEGRATION
-            physics = np.empty(mujoco.mj_stateSize(layer.model, spec))
-            mujoco.mj_getState(layer.model, value, physics, spec)
-            state[name] = {"mujoco": physics}
-        elif isinstance(value, bool | int | float | np.ndarray | np.generic | None):
+        elif type(value).__name__ == "MjData":
+            state[name] = {"mujoco": _physics(layer.model, value)}
+        elif isinstance(value, bool | int | float | np.ndarray | np.generic | None) or (
+            isinstance(value, dict)
+            and value
+            and all(isinstance(v, np.ndarray) for v in value.values())
+        ):  # a dict of arrays: a recorded state (common/grasped_start.py)
             state[name] = copy.deepcopy(value)
     return state
 
@@ -233,13 +233,34 @@ def _restore_value(layer, name: str, value) -> None:
         generator.bit_generator.state = value["generator"]
         setattr(layer, name, generator)
     elif isinstance(value, dict) and value.keys() == {"mujoco"}:
-        import mujoco
-
-        data = getattr(layer, name)
-        mujoco.mj_setState(layer.model, data, value["mujoco"], mujoco.mjtState.mjSTATE_INTEGRATION)
-        mujoco.mj_forward(layer.model, data)
+        _restore_physics(layer.model, getattr(layer, name), value["mujoco"])
     else:
         setattr(layer, name, value)
+
+
+def _physics(model, data) -> dict:
+    """MuJoCo's state (``mjSTATE_INTEGRATION``) and what the last step computed from it (body
+    positions, ...): a task may read those before its next step (the Fetch tasks' mocap). Not
+    the arrays sized by the contacts of the moment, nor the plugins' pointers."""
+    import mujoco
+
+    spec = mujoco.mjtState.mjSTATE_INTEGRATION
+    state = np.empty(mujoco.mj_stateSize(model, spec))
+    mujoco.mj_getState(model, data, state, spec)
+    derived = {name: getattr(data, name).copy() for name in dir(data)
+               if not name.startswith(("_", "efc_", "iefc_", "efm_", "island", "map_", "plugin"))
+               and isinstance(getattr(data, name), np.ndarray)}  # fmt: skip
+    return {"state": state, "derived": derived}
+
+
+def _restore_physics(model, data, saved: dict) -> None:
+    import mujoco
+
+    mujoco.mj_setState(model, data, saved["state"], mujoco.mjtState.mjSTATE_INTEGRATION)
+    mujoco.mj_forward(model, data)  # the arrays sized by this state's contacts, then the rest
+    for name, value in saved["derived"].items():
+        if getattr(data, name, None) is not None and getattr(data, name).shape == value.shape:
+            getattr(data, name)[...] = value
 
 
 def load(path: str) -> dict:

@@ -35,3 +35,54 @@ def test_a_resumed_run_equals_the_run_that_never_stopped(tmp_path, script):
     assert runs["resumed"].keys() == runs["whole"].keys()
     for tag, values in runs["whole"].items():
         assert runs["resumed"][tag] == values, tag
+
+
+def vector_env(env_id: str, grasped: float = 0.0):
+    import gymnasium as gym
+
+    from common.grasped_start import GraspedStart
+
+    def make():
+        env = gym.make(env_id)
+        env = GraspedStart(env, grasped) if grasped else env
+        return gym.wrappers.RecordEpisodeStatistics(env)
+
+    mode = gym.vector.AutoresetMode.SAME_STEP
+    return gym.vector.SyncVectorEnv([make] * 2, autoreset_mode=mode)
+
+
+@pytest.mark.parametrize(
+    "env_id, grasped",
+    [("Hopper-v5", 0.0), ("FetchReach-v4", 0.0), ("tests.point_goal:PointGoal-v0", 0.0),
+     ("FetchPickAndPlace-v4", 0.0), ("FetchPickAndPlace-v4", 0.5)],
+)  # fmt: skip
+def test_environments_restored_in_a_new_process_go_on_as_the_originals(env_id, grasped):
+    """``EnvsState`` through a file, into freshly made envs (as in a resumed process): the same
+    actions give the same observations, rewards and ends, across episode ends and resets."""
+    import numpy as np
+    import torch
+
+    from common import checkpoint, cli
+
+    cli.register_goal_tasks()
+    envs = vector_env(env_id, grasped)
+    envs.reset(seed=[3, 4])
+    rng = np.random.default_rng(0)
+    actions = [envs.action_space.sample() for _ in range(5)] + [
+        rng.uniform(-1, 1, envs.action_space.shape) for _ in range(120)
+    ]
+    for action in actions[:5]:  # mid-episode
+        envs.step(action)
+    buffer = torch.serialization.io.BytesIO()
+    torch.save(checkpoint.plain(checkpoint.EnvsState(envs).state_dict()), buffer)
+    buffer.seek(0)
+    saved = checkpoint.unplain(torch.load(buffer, weights_only=True))
+    fresh = vector_env(env_id, grasped)
+    checkpoint.EnvsState(fresh).load_state_dict(saved)
+    for action in actions[5:]:  # past the ends of 50-step episodes, through their resets
+        a, b = envs.step(action), fresh.step(action)
+        for x, y in zip(a[:4], b[:4], strict=True):
+            np.testing.assert_array_equal(
+                np.concatenate([np.ravel(v) for v in x.values()]) if isinstance(x, dict) else x,
+                np.concatenate([np.ravel(v) for v in y.values()]) if isinstance(y, dict) else y,
+            )
