@@ -238,29 +238,41 @@ def _restore_value(layer, name: str, value) -> None:
         setattr(layer, name, value)
 
 
+# what a MuJoCo step leaves computed (positions, orientations, velocities, forces), which a task
+# may read before its next step (the Fetch tasks' mocap reads the gripper's body position)
+COMPUTED = ("xpos", "xquat", "xmat", "xipos", "ximat", "xanchor", "xaxis", "geom_xpos",
+            "geom_xmat", "site_xpos", "site_xmat", "cam_xpos", "cam_xmat", "light_xpos",
+            "light_xdir", "subtree_com", "cdof", "cinert", "cvel", "cdof_dot", "cacc", "cfrc_int",
+            "cfrc_ext", "sensordata", "actuator_length", "actuator_velocity", "actuator_force",
+            "ten_length", "ten_velocity", "qfrc_actuator", "qfrc_bias", "qfrc_passive",
+            "qfrc_constraint", "qacc", "energy")  # fmt: skip
+
+
 def _physics(model, data) -> dict:
-    """MuJoCo's state (``mjSTATE_INTEGRATION``) and what the last step computed from it (body
-    positions, ...): a task may read those before its next step (the Fetch tasks' mocap). Not
-    the arrays sized by the contacts of the moment, nor the plugins' pointers."""
+    """MuJoCo's state (``mjSTATE_INTEGRATION``) and, in one array, what the last step computed
+    from it (``COMPUTED``)."""
     import mujoco
 
     spec = mujoco.mjtState.mjSTATE_INTEGRATION
     state = np.empty(mujoco.mj_stateSize(model, spec))
     mujoco.mj_getState(model, data, state, spec)
-    derived = {name: getattr(data, name).copy() for name in dir(data)
-               if not name.startswith(("_", "efc_", "iefc_", "efm_", "island", "map_", "plugin"))
-               and isinstance(getattr(data, name), np.ndarray)}  # fmt: skip
-    return {"state": state, "derived": derived}
+    computed = [np.ravel(getattr(data, name)) for name in COMPUTED if hasattr(data, name)]
+    return {"state": state, "computed": np.concatenate(computed)}
 
 
 def _restore_physics(model, data, saved: dict) -> None:
     import mujoco
 
     mujoco.mj_setState(model, data, saved["state"], mujoco.mjtState.mjSTATE_INTEGRATION)
-    mujoco.mj_forward(model, data)  # the arrays sized by this state's contacts, then the rest
-    for name, value in saved["derived"].items():
-        if getattr(data, name, None) is not None and getattr(data, name).shape == value.shape:
-            getattr(data, name)[...] = value
+    mujoco.mj_forward(model, data)  # what COMPUTED leaves out, then COMPUTED as it was
+    start = 0
+    for name in (name for name in COMPUTED if hasattr(data, name)):
+        array = getattr(data, name)
+        array.flat[:] = saved["computed"][start : start + array.size]
+        start += array.size
+    if start != len(saved["computed"]):
+        raise ValueError(f"the saved physics holds {len(saved['computed'])} computed values, "
+                         f"this task {start}")  # fmt: skip
 
 
 def load(path: str) -> dict:
