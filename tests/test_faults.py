@@ -394,7 +394,7 @@ def test_a_run_folder_turned_read_only_stops_in_one_line(monkeypatch, tmp_path, 
     assert checkpoint._read(str(run_dir / "resume.pt"))["global_step"] == 256
 
 
-@pytest.mark.parametrize("delay", [0.1, 0.5, 1.0, 2.0])
+@pytest.mark.parametrize("delay", [0.3, 0.6, 1.0, 2.0])
 def test_ctrl_c_while_evaluate_starts_is_one_line(finished_run, delay):
     """Ctrl-C at any moment of ``python -m common.evaluate``'s start (torch's import, the task's
     checks, loading): one line, Ctrl-C's exit code."""
