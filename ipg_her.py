@@ -15,6 +15,8 @@ import sys
 from dataclasses import dataclass
 from typing import Literal
 
+from common import cli  # isort: skip  (first: a Ctrl-C while torch loads is one line)
+
 import gymnasium as gym
 import numpy as np
 import torch
@@ -22,7 +24,7 @@ import torch.nn as nn
 import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
-from common import cli, diagnostics, her
+from common import diagnostics, her
 from common.her import HerReplayBuffer, goal_task_reward, sparse_return_range
 from common.normalizer import InputNormalizer, RewardScaler
 from common.replay import ReplayBuffer, buffer_refusal, sample_replay
@@ -125,6 +127,10 @@ def check_args(args: Args, argv: list[str]) -> None:
     ))  # fmt: skip
     cli.check_positive(args, "critic_learning_rate", "critic_batch_size", "buffer_size")
     cli.check_positive(args, "hidden", "off_policy_batch_size")
+    batch = max(args.off_policy_batch_size, args.critic_batch_size, args.num_envs * args.num_steps)
+    cli.check_memory(4 * args.hidden * (20 * args.hidden + 16 * batch),
+                     f"--hidden {args.hidden} with batches of {batch:,} (the largest of "
+                     "--off-policy-batch-size, --critic-batch-size and the rollout)")  # fmt: skip
     cli.check_range(args, "tau", 0.0, 1.0, open_low=True)
     cli.refuse(buffer_refusal(args.buffer_size, args.num_envs, args.env_id))
     cli.refuse(her.check(args, args.env_id, goal_task))  # and on a task without goals: HER is off

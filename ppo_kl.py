@@ -14,6 +14,8 @@ and adapts beta to the update's mean KL d (the PPO paper's rule, beta kept in DP
 
 from dataclasses import dataclass
 
+from common import cli  # isort: skip  (first: a Ctrl-C while torch loads is one line)
+
 import gymnasium as gym
 import numpy as np
 import torch
@@ -21,7 +23,6 @@ import torch.nn as nn
 import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
-from common import cli
 from common.normalizer import RewardScaler, RunningMeanStd
 from common.run import Run, RunArgs
 

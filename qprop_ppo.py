@@ -18,6 +18,8 @@ import sys
 from dataclasses import dataclass
 from typing import Literal
 
+from common import cli  # isort: skip  (first: a Ctrl-C while torch loads is one line)
+
 import gymnasium as gym
 import numpy as np
 import torch
@@ -25,7 +27,7 @@ import torch.nn as nn
 import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
-from common import cli, diagnostics
+from common import diagnostics
 from common.normalizer import RewardScaler, RunningMeanStd
 from common.replay import ReplayBuffer, buffer_refusal, sample_replay
 from common.run import Run, RunArgs
@@ -113,6 +115,9 @@ def check_args(args: Args, argv: list[str]) -> None:
     ))  # fmt: skip
     cli.check_positive(args, "critic_learning_rate", "critic_batch_size", "buffer_size")
     cli.check_positive(args, "critic_hidden")
+    hidden, batch = args.critic_hidden, args.critic_batch_size
+    cli.check_memory(4 * hidden * (20 * hidden + 16 * batch),
+                     f"--critic-hidden {hidden} with --critic-batch-size {batch:,}")  # fmt: skip
     cli.check_range(args, "tau", 0.0, 1.0, open_low=True)
     cli.refuse(buffer_refusal(args.buffer_size, args.num_envs, args.env_id))
 

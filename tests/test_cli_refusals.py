@@ -228,7 +228,10 @@ def test_a_tuple_of_floats_refuses_nan_and_none_stays_allowed(capsys):
      ("ipg_her", ["--gamma", "1"], "--gamma 1.0 on a goal task"),
      ("ipg_her_recipe", ["--gamma", "1"], "--gamma 1.0 on a goal task"),
      ("ppo_kl", ["--torch-threads", "0"], "--torch-threads must be positive"),
-     ("ppo_kl", ["--exp-name", "../../x"], "--exp-name '../../x' must be a plain name")],
+     ("ppo_kl", ["--exp-name", "../../x"], "--exp-name '../../x' must be a plain name"),
+     ("ipg_her", ["--hidden", "100000"], "--hidden 100000 with batches of 256"),
+     ("ipg_her_recipe", ["--off-policy-batch-size", "1000000000"], "batches of 1,000,000,000"),
+     ("qprop_ppo", ["--critic-hidden", "200000"], "--critic-hidden 200000 with")],
 )  # fmt: skip
 def test_refusals_end_to_end_leave_no_run_folder(tmp_path, script, argv, needle):
     result = run_script(f"{script}.py", tmp_path, *argv, timeout=120)

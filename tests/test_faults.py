@@ -408,6 +408,20 @@ def test_ctrl_c_while_evaluate_starts_is_one_line(finished_run, delay):
     assert err == "interrupted; nothing was written\n", err
 
 
+@pytest.mark.parametrize("script", ["ppo_kl.py", "qprop_ppo.py", "ipg_her.py", "ipg_her_recipe.py"])
+def test_ctrl_c_while_a_script_imports_is_one_line(tmp_path, script):
+    """Ctrl-C while torch and gymnasium load (each script imports ``common.cli`` first): one
+    line, Ctrl-C's exit code, no run folder."""
+    cmd = [sys.executable, str(ROOT / script), "--log-dir", str(tmp_path)]
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, stderr=subprocess.PIPE, text=True)
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGINT)
+    err = proc.communicate(timeout=60)[1]
+    assert proc.returncode in (130, -signal.SIGINT), err
+    assert err == "interrupted; nothing was written\n", err
+    assert not list(tmp_path.iterdir())
+
+
 DRIVER = """import runpy, sys
 import torch
 def interrupted(*args, **kwargs):
