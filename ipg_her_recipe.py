@@ -140,20 +140,15 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     """weight of the penalty mean((mu(s) beyond the action bounds)^2) (rl_games' bounds loss)"""
     twin_critic: bool = False
     """two critics, the target the smaller of their Q_w' (TD3's clipped double Q)"""
-    critic_target: Literal["mean", "sample"] = "mean"
-    """the critic's target at a' = mu(s') (DDPG's) or at one a' ~ pi(s') (SAC's, no entropy term)"""
-    clip_q_target: bool = True
-    """goal tasks with Fetch's 0/-1 reward: clip critic targets to [-1/(1-gamma), 0]"""
 
 
 def ignored(args: Args, goal_task: bool = True) -> dict[str, str]:
     """The flags this run would ignore, ``{flag: why}``: given on the command line, they fail."""
     critic_flags = ("--critic-learning-rate --critic-batch-size --critic-steps --tau --buffer-size "
                     "--learning-starts --q-bar --off-policy-states --off-policy-batch-size "
-                    "--normalization --diagnostics-every --action-l2 --bounds-loss --twin-critic "
-                    "--critic-target --clip-q-target")  # fmt: skip
+                    "--normalization --diagnostics-every --action-l2 --bounds-loss "
+                    "--twin-critic")  # fmt: skip
     return her.ignored(args, args.env_id, goal_task) | cli.ignored(
-        (not goal_task, "--clip-q-target", f"{args.env_id} is not a goal task"),
         (not args.norm_adv, "--normalization", "--no-norm-adv: nothing to normalise"),
         (args.off_policy_states == "batch", "--off-policy-batch-size", "--off-policy-states batch"),
         (args.nu == 1 and args.use_cv, "--use-cv", "at --nu 1 its on-policy term has weight 0"),
@@ -307,14 +302,13 @@ def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, rb, update_norm: 
 
 # ALGO LOGIC: the critic step: DDPG's TD learning, eq. 6's soft target update
 def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent,
-                data: dict, gamma: float, tau: float, target_range=None, sample=False):  # fmt: skip
+                data: dict, gamma: float, tau: float, target_range=None):  # fmt: skip
     """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
-    with torch.no_grad():  # Q_w'(s', a'), a' = mu(s') or a' ~ pi(s'); twin: the smaller (TD3)
-        a = agent.dist(data["next_obs"]).sample() if sample else agent.actor_mean(data["next_obs"])
-        next_q = torch.stack(qf_target(data["next_obs"], a, True))
-        target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q.min(0).values
-        if target_range is not None:
-            target = target.clamp(*target_range)  # the returns the rewards allow (OpenAI's HER)
+    with torch.no_grad():  # Q_w'(s', mu(s')); twin: the smaller of the two (TD3)
+        next_q = qf_target(data["next_obs"], agent.actor_mean(data["next_obs"]), both=True)
+        next_q = torch.stack(next_q).min(0).values
+        target = data["rewards"] + gamma * (1.0 - data["terminations"]) * next_q
+        target = target.clamp(*target_range) if target_range else target  # OpenAI's HER
     qs = qf(data["obs"], data["actions"], both=True)
     loss = sum(0.5 * ((q - target) ** 2).mean() for q in qs)  # twin: each network its own
     q_optimizer.zero_grad()
@@ -508,8 +502,7 @@ if __name__ == "__main__":
     q_range = None  # the returns the reward allows: the critic's targets are clipped to them
     if goal_dim:  # hindsight relabelling (Figure 2) needs the task's reward function
         compute_reward = goal_task_reward(args.env_id, args.her)
-        if args.clip_q_target:
-            q_range = sparse_return_range(compute_reward, goal_dim, args.gamma)
+        q_range = sparse_return_range(compute_reward, goal_dim, args.gamma)
         rb = HerReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, goal_dim,
                              compute_reward, args.her_n_sampled_goal if args.her else 0,
                              args.her_goal_selection_strategy, run.streams.replay_seed)  # fmt: skip
@@ -547,8 +540,7 @@ if __name__ == "__main__":
                 for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size,
                                           args.critic_steps):  # fmt: skip
                     q_loss, q_mean = critic_step(qf, qf_target, q_optimizer, agent, data,
-                                                 args.gamma, args.tau, target_range,
-                                                 args.critic_target == "sample")  # fmt: skip
+                                                 args.gamma, args.tau, target_range)  # fmt: skip
                 run.log({"losses/critic_loss": q_loss, "losses/q_values": q_mean})
 
             # ALGO LOGIC: advantages (eq. 3-4) and the control variate (eq. 9)

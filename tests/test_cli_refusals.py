@@ -52,9 +52,7 @@ def test_an_ignored_boolean_is_refused_whatever_its_spelling(capsys, typed):
     assert line.startswith(f"error: {typed} would be ignored (at --nu 0 without --use-cv")
 
 
-@pytest.mark.parametrize(
-    "argv", [["--critic_target=sample"], ["--action_l2", "1"], ["--bounds_loss=1"]]
-)
+@pytest.mark.parametrize("argv", [["--action_l2=1"], ["--action_l2", "1"], ["--bounds_loss=1"]])
 def test_an_ignored_value_flag_is_refused_whatever_its_spelling(capsys, argv):
     assert "would be ignored" in refused(capsys, ipg_her_recipe, "--nu", "0", *argv)
 
@@ -99,9 +97,6 @@ NU0_IGNORED = [
     ["--no-her"],
 ]
 RECIPE_NU0_IGNORED = [  # the recipe's critic flags, and its penalties on the off-policy term
-    ["--critic-target", "sample"],
-    ["--clip-q-target"],
-    ["--no-clip-q-target"],
     ["--twin-critic"],
     ["--action-l2", "1"],
     ["--bounds-loss", "1"],
@@ -141,12 +136,6 @@ def test_at_nu_0_without_control_variate_the_critics_flags_are_refused(capsys, s
 )  # fmt: skip
 def test_other_ignored_ipg_combinations_are_refused(capsys, script, argv, line):
     assert refused(capsys, IPG[script], *argv) == f"error: {line}: leave it out"
-
-
-def test_the_recipe_refuses_clipping_targets_where_no_goal_reward_is_clipped(capsys):
-    line = refused(capsys, ipg_her_recipe, "--env-id", "Hopper-v5", "--no-clip-q-target")
-    assert line == "error: --no-clip-q-target would be ignored (Hopper-v5 is not a goal task): " \
-                   "leave it out"  # fmt: skip
 
 
 @pytest.mark.parametrize(

@@ -60,14 +60,12 @@ def flat(net):
     return torch.cat([p.detach().flatten() for p in net.parameters()])
 
 
-def call(module, qf, qf_target, optimizer, agent, d, gamma=GAMMA, tau=TAU, target_range=None,
-         sample_next=None):  # fmt: skip
-    given = {"target_range": target_range, "sample": sample_next}  # IPG's; sample: the recipe's
-    extra = {key: value for key, value in given.items() if value is not None}
+def call(module, qf, qf_target, optimizer, agent, d, gamma=GAMMA, tau=TAU, target_range=None):
+    extra = {} if target_range is None else {"target_range": target_range}
     return module.critic_step(qf, qf_target, optimizer, agent, d, gamma, tau, **extra)
 
 
-def check_step(module, target_of, target_range=None, sample_next=None):
+def check_step(module, target_of, target_range=None):
     """One critic_step with SGD (lr 0.1): the loss and mean Q it returns, and the critic's new
     weights, are those of 0.5 E[(Q_w(s, a) - y)^2] for y = ``target_of(agent, qf_target, d)``."""
     agent, qf, qf_target = networks(module)
@@ -80,14 +78,7 @@ def check_step(module, target_of, target_range=None, sample_next=None):
     expected = flat(qf) - LR * torch.cat([g.flatten() for g in grads])
     optimizer = torch.optim.SGD(qf.parameters(), lr=LR)
     got_loss, got_mean_q = call(
-        module,
-        qf,
-        qf_target,
-        optimizer,
-        agent,
-        d,
-        target_range=target_range,
-        sample_next=sample_next,
+        module, qf, qf_target, optimizer, agent, d, target_range=target_range
     )
     assert got_loss == pytest.approx(loss.item(), rel=1e-5)
     assert got_mean_q == pytest.approx(q.mean().item(), rel=1e-5)
@@ -143,29 +134,6 @@ def test_ipg_targets_are_clipped_to_target_range(script, target_range):
     inside = (raw > lo) & (raw < hi)
     assert (raw < lo).any() and (raw > hi).any() and inside.any(), "a bound never reached"
     assert not torch.allclose(y, raw)
-
-
-def test_the_recipes_critic_target_at_a_sampled_next_action():
-    """ipg_her_recipe.py's --critic-target sample: y = r + gamma (1 - d) Q_w'(s', a') at the
-    a' ~ pi(s') the step draws from torch's generator (drawn here from the same state); not the
-    target at mu(s')."""
-
-    def sampled(agent, qf_target, d):
-        state = torch.get_rng_state()
-        with torch.no_grad():
-            a_next = agent.dist(d["next_obs"]).sample()
-        torch.set_rng_state(state)  # critic_step draws these same a'
-        assert (a_next - agent.actor_mean(d["next_obs"])).abs().min() > 0
-        return hand_target(agent, qf_target, d, a_next=a_next)
-
-    torch.manual_seed(3)
-    _, _, _, y = check_step(ipg_her_recipe, sampled, sample_next=True)
-    agent, _, qf_target = networks(ipg_her_recipe)
-    at_mean = hand_target(agent, qf_target, replay_batch())
-    live = replay_batch()["terminations"] == 0
-    assert (y - at_mean)[live].abs().min() > 1e-3, "a sampled a' should move every target"
-    _, _, _, y_mu = check_step(ipg_her_recipe, hand_target, sample_next=False)  # a' = mu(s')
-    torch.testing.assert_close(y_mu, at_mean)
 
 
 def test_twin_critic_targets_the_smaller_target_q_and_steps_each_network_on_its_own_loss():

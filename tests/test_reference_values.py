@@ -59,8 +59,8 @@ CONFIGS = {
                           "--update-epochs", "2", "--num-minibatches", "4", "--learning-rate",
                           "3e-4", "--gamma", "0.99", "--tau", "0.005", "--twin-critic",
                           "--target-std", "0.1", "--kl-target", "0.9", "--q-bar", "sample",
-                          "--bounds-loss", "1.0", "--normalization", "paper", "--critic-target",
-                          "sample", "--learning-starts", "256", "--eval-freq", "512",
+                          "--bounds-loss", "1.0", "--normalization", "paper",
+                          "--learning-starts", "256", "--eval-freq", "512",
                           "--eval-episodes", "1", "--diagnostics-every", "1", "--eval-workers",
                           "0"),
 }  # fmt: skip
