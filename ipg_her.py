@@ -24,13 +24,13 @@ import torch.nn as nn
 import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
-from common import diagnostics, her
+from common import diagnostics, her, tasks
 from common.her import HerReplayBuffer, goal_task_reward, sparse_return_range
 from common.normalizer import InputNormalizer, RewardScaler
 from common.replay import ReplayBuffer, buffer_refusal, sample_replay
 from common.run import Run, RunArgs
 
-cli.register_goal_tasks()
+tasks.register_goal_tasks()
 torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
 SUCCESS_KEYS = ("is_success", "success")  # a goal task's success flag: Fetch's, the mazes'
 BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
@@ -112,7 +112,13 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
 
 def check_args(args: Args, argv: list[str]) -> None:
     """Bad input fails here, before anything runs: one ``error:`` line (``common/cli.py``)."""
-    goal_task = cli.check_common(args)  # the checks every script needs
+    goal_task = cli.check_run(args)  # the run's own flags, the task and the budget
+    cli.check_positive(args, "num_minibatches", "update_epochs", "learning_rate", "kl_target")
+    cli.check_positive(args, "vf_coef", "max_grad_norm")  # <= 0: V unlearnt, reversed or frozen
+    cli.check_non_negative(args, "beta_init")
+    cli.check_range(args, "gamma", 0.0, 1.0, open_low=True)
+    cli.check_range(args, "gae_lambda", 0.0, 1.0)
+    cli.check_minibatches(args.num_envs * args.num_steps, args.num_minibatches)
     cli.check_range(args, "nu", 0.0, 1.0)
     cli.check_non_negative(args, "critic_steps", "learning_starts")
     critic_flags = ("--critic-learning-rate --critic-batch-size --critic-steps --tau --buffer-size "
@@ -134,7 +140,7 @@ def check_args(args: Args, argv: list[str]) -> None:
     cli.check_range(args, "tau", 0.0, 1.0, open_low=True)
     cli.refuse(buffer_refusal(args.buffer_size, args.num_envs, args.env_id))
     cli.refuse(her.check(args, args.env_id, goal_task))  # and on a task without goals: HER is off
-    if cli.task_name(args.env_id) in ("FetchPush-v4", "FetchPickAndPlace-v4", "FetchSlide-v4"):
+    if tasks.task_name(args.env_id) in ("FetchPush-v4", "FetchPickAndPlace-v4", "FetchSlide-v4"):
         print(f"{args.env_id}: the paper's IPG+HER; the recipe it needs: ipg_her_recipe.py")
 
 

@@ -30,14 +30,14 @@ import torch.nn as nn
 import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
-from common import diagnostics, her
+from common import diagnostics, her, tasks
 from common.grasped_start import GraspedStart, refusal
 from common.her import HerReplayBuffer, goal_task_reward, sparse_return_range
 from common.normalizer import InputNormalizer, RewardScaler
 from common.replay import ReplayBuffer, buffer_refusal, sample_replay
 from common.run import Run, RunArgs
 
-cli.register_goal_tasks()
+tasks.register_goal_tasks()
 torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
 SUCCESS_KEYS = ("is_success", "success")  # a goal task's success flag: Fetch's, the mazes'
 BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
@@ -52,7 +52,7 @@ TASK_DEFAULTS = {  # the two tasks with rows of their own; sigma per x, y, z, gr
 
 def task_defaults(env_id: str) -> dict:
     """The task's row of TASK_DEFAULTS, else on a goal task the RECIPE, else none."""
-    return TASK_DEFAULTS.get(cli.task_name(env_id)) or (RECIPE if cli.goal_task(env_id) else {})
+    return TASK_DEFAULTS.get(tasks.task_name(env_id)) or (RECIPE if tasks.goal_task(env_id) else {})
 
 
 @dataclass
@@ -159,7 +159,13 @@ def ignored(args: Args, goal_task: bool = True) -> dict[str, str]:
 
 def check_args(args: Args, argv: list[str]) -> None:
     """Bad input fails here, before anything runs: one ``error:`` line (``common/cli.py``)."""
-    goal_task = cli.check_common(args)  # the checks every script needs
+    goal_task = cli.check_run(args)  # the run's own flags, the task and the budget
+    cli.check_positive(args, "num_minibatches", "update_epochs", "learning_rate", "kl_target")
+    cli.check_positive(args, "vf_coef", "max_grad_norm")  # <= 0: V unlearnt, reversed or frozen
+    cli.check_non_negative(args, "beta_init")
+    cli.check_range(args, "gamma", 0.0, 1.0, open_low=True)
+    cli.check_range(args, "gae_lambda", 0.0, 1.0)
+    cli.check_minibatches(args.num_envs * args.num_steps, args.num_minibatches)
     cli.check_range(args, "nu", 0.0, 1.0)
     cli.check_non_negative(args, "critic_steps", "learning_starts", "action_l2", "bounds_loss")
     cli.refuse_ignored(argv, ignored(args, goal_task))

@@ -27,12 +27,12 @@ import torch.nn as nn
 import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
-from common import diagnostics
+from common import diagnostics, tasks
 from common.normalizer import RewardScaler, RunningMeanStd
 from common.replay import ReplayBuffer, buffer_refusal, sample_replay
 from common.run import Run, RunArgs
 
-cli.register_goal_tasks()
+tasks.register_goal_tasks()
 torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
 SUCCESS_KEYS = ("is_success", "success")  # a goal task's success flag: Fetch's, the mazes'
 BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
@@ -105,7 +105,13 @@ class Args(RunArgs):
 
 def check_args(args: Args, argv: list[str]) -> None:
     """Bad input fails here, before anything runs: one ``error:`` line (``common/cli.py``)."""
-    cli.check_common(args)  # the checks every script needs
+    cli.check_run(args)  # the run's own flags, the task and the budget
+    cli.check_positive(args, "num_minibatches", "update_epochs", "learning_rate", "kl_target")
+    cli.check_positive(args, "vf_coef", "max_grad_norm")  # <= 0: V unlearnt, reversed or frozen
+    cli.check_non_negative(args, "beta_init")
+    cli.check_range(args, "gamma", 0.0, 1.0, open_low=True)
+    cli.check_range(args, "gae_lambda", 0.0, 1.0)
+    cli.check_minibatches(args.num_envs * args.num_steps, args.num_minibatches)
     cli.check_non_negative(args, "critic_steps", "learning_starts")
     critic_flags = ("--critic-learning-rate --critic-batch-size --critic-steps --tau --buffer-size "
                     "--learning-starts --critic-hidden --normalization")  # fmt: skip

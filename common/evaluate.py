@@ -43,7 +43,7 @@ import torch
 import torch.nn.functional as F
 import tyro
 
-from common import checkpoint, seeding
+from common import checkpoint, seeding, tasks
 from common.normalizer import InputNormalizer, RunningMeanStd
 from common.rollout import success_of
 
@@ -87,7 +87,7 @@ class Policy:
             for i in range(0, depth, 2)
         ]  # Linear, Tanh, Linear, Tanh, Linear
         self.log_std = actor["actor_logstd"]
-        cli.register_goal_tasks()
+        tasks.register_goal_tasks()
         env = gym.make(env_id)
         self.obs_space, action_space = env.observation_space, env.action_space
         env.close()
@@ -173,8 +173,8 @@ def load_policy(path: str, env_id: str | None = None) -> Policy:
         if ":" in env_id:
             raise ValueError(f"this policy was trained on {env_id}; pass --env-id {env_id} "
                              f"to import {env_id.rpartition(':')[0]}")  # fmt: skip
-    cli.register_goal_tasks()
-    if why := cli.task_refusal(env_id):
+    tasks.register_goal_tasks()
+    if why := tasks.task_refusal(env_id):
         raise ValueError(why)
     return Policy(content, env_id)
 

@@ -11,7 +11,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from common.cli import available_memory, goal_space, task_name
+from common.tasks import available_memory, goal_space, task_name
 
 
 class ReplayBuffer:

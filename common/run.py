@@ -37,7 +37,7 @@ import torch
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
-from common import checkpoint, cli, seeding
+from common import checkpoint, cli, seeding, tasks
 from common.evaluate import BackgroundEvaluator, evaluate_snapshot
 
 
@@ -135,7 +135,7 @@ def quiet_writer_thread(hook) -> None:
 def start_run(args) -> str:
     """A new run folder ``{log_dir}/{env_id}__{exp_name}__{seed}__{unix time}`` (a suffix keeps
     two runs started in the same second apart)."""
-    run_name = f"{cli.task_name(args.env_id)}__{args.exp_name}__{args.seed}__{int(time.time())}"
+    run_name = f"{tasks.task_name(args.env_id)}__{args.exp_name}__{args.seed}__{int(time.time())}"
     run_dir = os.path.join(args.log_dir, run_name)
     for suffix in range(1, 1000):
         try:

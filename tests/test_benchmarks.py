@@ -225,11 +225,11 @@ def test_every_suite_command_passes_its_scripts_checks(monkeypatch):
     import ipg_her_recipe
     import ppo_kl
     import qprop_ppo
-    from common import cli
+    from common import cli, tasks
 
     scripts = {"ppo_kl.py": ppo_kl, "qprop_ppo.py": qprop_ppo, "ipg_her.py": ipg_her,
                "ipg_her_recipe.py": ipg_her_recipe}  # fmt: skip
-    monkeypatch.setattr(cli.gym, "make", functools.cache(cli.gym.make))  # spaces only: one each
+    monkeypatch.setattr(tasks.gym, "make", functools.cache(tasks.gym.make))  # spaces only: one each
     suites = run.Args.__annotations__["suite"].__args__
     assert sorted(suites) == sorted(run.SUITES)
     refused = []

@@ -13,7 +13,7 @@ import ipg_her
 import ipg_her_recipe
 import ppo_kl
 import qprop_ppo
-from common import cli
+from common import cli, tasks
 from common.run import start_run
 
 SCRIPTS = {"ppo_kl": ppo_kl, "qprop_ppo": qprop_ppo, "ipg_her": ipg_her,
@@ -57,7 +57,7 @@ SCRIPTS = {"ppo_kl": ppo_kl, "qprop_ppo": qprop_ppo, "ipg_her": ipg_her,
     ],
 )  # fmt: skip
 def test_common_checks(capsys, script, argv, needle):
-    """Tasks and values none of the scripts can use (``cli.check_common``)."""
+    """Tasks and values none of the scripts can use (``cli.check_run`` and each script's own)."""
     assert needle in refused(capsys, SCRIPTS[script], *argv)
 
 
@@ -201,9 +201,9 @@ def test_a_buffer_larger_than_the_memory_is_refused(capsys, script, argv, needle
 
 
 def test_check_memory_refuses_what_the_machine_cannot_hold(capsys):
-    cli.check_memory(cli.available_memory() / 2, "--hidden 64")
+    cli.check_memory(tasks.available_memory() / 2, "--hidden 64")
     with pytest.raises(SystemExit):
-        cli.check_memory(2 * cli.available_memory(), "--hidden 100000")
+        cli.check_memory(2 * tasks.available_memory(), "--hidden 100000")
     line = capsys.readouterr().err
     assert line.startswith("error: --hidden 100000 needs about ") and "are available" in line
 

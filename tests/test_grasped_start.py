@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 from conftest import assert_clean_error, run_script
 
-from common import cli
+from common import tasks
 from common.grasped_start import GraspedStart, refusal
 
-cli.register_goal_tasks()
+tasks.register_goal_tasks()
 TASK = "FetchPickAndPlace-v4"
 
 

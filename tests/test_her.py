@@ -8,10 +8,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from common import cli, her, replay
+from common import her, replay, tasks
 from common.her import HerReplayBuffer
 
-cli.register_goal_tasks()
+tasks.register_goal_tasks()
 
 
 def compute_reward(achieved_goal, desired_goal):
@@ -228,21 +228,28 @@ def test_her_flags_a_run_would_ignore():
     )
 
 
+def run_args(**her_flags) -> her.HerArgs:
+    """HER's flags as a script has them, beside its discount (``her.check`` reads both)."""
+    args = her.HerArgs(**her_flags)
+    args.gamma = 0.98
+    return args
+
+
 def test_her_refuses_a_negative_k_and_a_task_it_cannot_serve_and_says_when_it_is_off(capsys):
     """``her.check``: a negative k is refused (before anything else); a task without goals
     passes, with one line saying that HER is off; a goal task whose termination depends on the
     goal is refused with HER on and passes with it off; Fetch passes, silently."""
     line = "--her-n-sampled-goal must be non-negative, got -1"
-    assert her.check(her.HerArgs(her_n_sampled_goal=-1), "FetchReach-v4", True) == line
-    assert her.check(her.HerArgs(her_n_sampled_goal=-1), "Hopper-v5", False) == line
+    assert her.check(run_args(her_n_sampled_goal=-1), "FetchReach-v4", True) == line
+    assert her.check(run_args(her_n_sampled_goal=-1), "Hopper-v5", False) == line
     assert capsys.readouterr().out == ""
-    assert her.check(her.HerArgs(), "Hopper-v5", False) is None
+    assert her.check(run_args(), "Hopper-v5", False) is None
     assert capsys.readouterr().out == "Hopper-v5 has no goals: hindsight relabelling (HER) is off\n"
     maze = ending_maze()
-    assert her.check(her.HerArgs(), maze, True) == her.hindsight_refusal(maze)
+    assert her.check(run_args(), maze, True) == her.hindsight_refusal(maze)
     assert "terminates depending on the goal; " in her.hindsight_refusal(maze)
-    assert her.check(her.HerArgs(her=False), maze, True) is None
-    assert her.check(her.HerArgs(), "FetchReach-v4", True) is None
+    assert her.check(run_args(her=False), maze, True) is None
+    assert her.check(run_args(), "FetchReach-v4", True) is None
     assert capsys.readouterr().out == ""
 
 
@@ -260,7 +267,7 @@ def test_a_goal_task_without_a_batched_compute_reward_is_refused():
         env_id = f"{env_class.__name__}-v0"
         if env_id not in gym.registry:
             gym.register(env_id, env_class, max_episode_steps=5)
-        for args in (her.HerArgs(), her.HerArgs(her=False)):
+        for args in (run_args(), run_args(her=False)):
             assert her.check(args, env_id, True).startswith(
                 f"{env_id} has goals but no compute_reward(achieved_goal, desired_goal, info) "
                 "that takes a batch of goals and returns one reward each"

@@ -44,6 +44,15 @@ def test_the_recipe_learns_a_goal_task_of_your_own(tmp_path):
     assert run_dir.name.startswith("PointGoal-v0__ipg_her_recipe__1__")  # the task, not its module
     success = scalars(run_dir)["eval/success_rate"][-1][1]
     assert success >= 0.9, f"eval success {success} < 0.9 after 2,500 steps"
-    evaluate = [sys.executable, "-m", "common.evaluate", str(run_dir), "--episodes", "2"]
+    evaluate = [
+        sys.executable,
+        "-m",
+        "common.evaluate",
+        str(run_dir),
+        "--episodes",
+        "2",
+        "--env-id",
+        "tests.point_goal:PointGoal-v0",
+    ]  # a model file names no module
     replay = subprocess.run(evaluate, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert replay.returncode == 0 and "success" in replay.stdout, replay.stdout + replay.stderr

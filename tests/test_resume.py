@@ -62,9 +62,9 @@ def test_environments_restored_in_a_new_process_go_on_as_the_originals(env_id, g
     import numpy as np
     import torch
 
-    from common import checkpoint, cli
+    from common import checkpoint, tasks
 
-    cli.register_goal_tasks()
+    tasks.register_goal_tasks()
     envs = vector_env(env_id, grasped)
     envs.reset(seed=[3, 4])
     rng = np.random.default_rng(0)

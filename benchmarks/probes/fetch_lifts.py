@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the project root
-from common import checkpoint, cli  # noqa: E402
+from common import checkpoint, tasks  # noqa: E402
 from common.evaluate import Policy  # noqa: E402
 
 HELD_CM, HELD_STEPS, EPISODE = 2.0, 10, 50
@@ -65,7 +65,7 @@ if __name__ == "__main__":
     torch.set_num_threads(1)
     content = checkpoint.load(str(Path(args.run_folder) / "resume.pt"))
     env_id = content["args"]["env_id"]
-    cli.register_goal_tasks()
+    tasks.register_goal_tasks()
     policy = Policy(content, env_id)  # checkpoint.load names a resume.pt's normaliser
     print(f"{env_id}, {content['global_step']:,} steps: the deterministic policy")
     for where, r in policy_by_goal(policy, env_id, range(10**6, 10**6 + args.episodes)).items():

@@ -21,7 +21,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the project root
 import ipg_her_recipe  # noqa: E402
-from common import checkpoint, cli  # noqa: E402
+from common import checkpoint, tasks  # noqa: E402
 from common.evaluate import Policy  # noqa: E402
 
 ENV_ID, EPISODE, PUCK_VELP, GRIP_VELP = "FetchSlide-v4", 50, slice(14, 16), slice(20, 22)
@@ -179,7 +179,7 @@ if __name__ == "__main__":
     parser.add_argument("--critic", action="store_true", help="Q_1 at the step that moves the puck")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    cli.register_goal_tasks()
+    tasks.register_goal_tasks()
     content = checkpoint.load(args.run_folder)
     policy, episodes = Policy(content, ENV_ID), range(3000, 3000 + args.episodes)  # reset seeds
     r = policy_strikes(policy, episodes)
