@@ -45,7 +45,6 @@ import tyro
 
 from common import checkpoint, seeding, tasks
 from common.normalizer import InputNormalizer, RunningMeanStd
-from common.rollout import success_of
 
 
 @dataclass
@@ -65,6 +64,14 @@ class Args:
     """record the first episode into the run's videos/evaluate (moviepy; MuJoCo's renderer)"""
     env_id: str | None = None
     """evaluate on another task with the same observation and action spaces"""
+
+
+SUCCESS_KEYS = ("is_success", "success")  # a goal task's success flag: Fetch's, the mazes'
+
+
+def success_of(info: dict):
+    """A goal task's success flag in an episode's last ``info``, else None."""
+    return next((info[key] for key in SUCCESS_KEYS if key in info), None)
 
 
 class Policy:
