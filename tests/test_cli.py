@@ -1,13 +1,26 @@
-"""common/cli.py and each script's own argument checks, in-process: bad input exits with one
-``error:`` line naming the problem, before any run folder exists."""
+"""common/cli.py and each script's own argument checks: bad input exits with one ``error:``
+line naming the problem, before any run folder exists. Flags in any spelling, flags a run would
+ignore (IPG at nu = 0 and 1, Q-Prop without a critic), nan and inf, tyro's parse errors, the
+task's defaults; in-process, plus a few runs as a user runs them (one line, no run folder)."""
 
 import dataclasses
 import os
 import subprocess
 import sys
+import typing
 
+import gymnasium as gym
+import numpy as np
 import pytest
-from conftest import ROOT, assert_clean_error, parse, refused, run_dirs, run_script
+from conftest import (
+    ROOT,
+    assert_clean_error,
+    parse,
+    refused,
+    run_dirs,
+    run_script,
+    scalars,
+)
 
 import ipg_her
 import ipg_her_recipe
@@ -275,3 +288,319 @@ def test_a_tasks_own_defaults_apply_where_no_flag_was_given(capsys):
     assert (slide.target_std, slide.action_l2, slide.bounds_loss) == ((0.3, 0.3, 0.3, 1.0), 0, 1)
     assert (slide.hidden, slide.normalization, slide.twin_critic) == (256, "paper", True)
     assert slide.anneal_lr and not parse("--env-id", "FetchPush-v4").anneal_lr  # Slide's only
+
+
+IPG = {"ipg_her": ipg_her, "ipg_her_recipe": ipg_her_recipe}  # the recipe keeps IPG's checks
+
+
+PUSH = ("--env-id", "FetchPush-v4")
+
+
+# row 9: a flag given wins over the task's default, whatever its spelling
+@pytest.mark.parametrize(
+    "argv, field, value",
+    [
+        (["--target_std 0.5"], "target_std", 0.5),
+        (["--target_std=0.5", "--target-std=0.5"], "target_std", 0.5),  # and as tyro spells it
+        (["--no_twin_critic"], "twin_critic", False),
+        (["--no-twin_critic", "--no-twin-critic"], "twin_critic", False),
+        (["--action_l2=0.5", "--action-l2=0.5"], "action_l2", 0.5),
+    ],
+)
+def test_a_flag_given_in_any_spelling_beats_the_tasks_default(capsys, argv, field, value):
+    for typed in argv:
+        args = parse(ipg_her_recipe, *PUSH, *typed.split())
+        assert getattr(args, field) == value
+        line = capsys.readouterr().out.strip().splitlines()[0]
+        assert line.startswith("defaults for FetchPush-v4: --hidden 256, ")
+        assert cli.flag(field) not in line  # not called the task's own
+
+
+@pytest.mark.parametrize(
+    "typed", ["--twin_critic", "--no-twin-critic", "--no_twin_critic", "--no-twin_critic"]
+)
+def test_an_ignored_boolean_is_refused_whatever_its_spelling(capsys, typed):
+    line = refused(capsys, ipg_her_recipe, "--nu", "0", typed)
+    assert line.startswith(f"error: {typed} would be ignored (at --nu 0 without --use-cv")
+
+
+@pytest.mark.parametrize("argv", [["--action_l2=1"], ["--action_l2", "1"], ["--bounds_loss=1"]])
+def test_an_ignored_value_flag_is_refused_whatever_its_spelling(capsys, argv):
+    assert "would be ignored" in refused(capsys, ipg_her_recipe, "--nu", "0", *argv)
+
+
+def test_ignored_gathers_the_rules_that_hold_and_a_later_rule_wins():
+    """``cli.ignored``: ``{flag: why}`` of every flag of every rule whose condition holds; a rule
+    that does not hold adds nothing, and a flag in two rules takes the later one's why."""
+    assert cli.ignored() == {}
+    assert cli.ignored((False, "--a --b", "never")) == {}
+    assert cli.ignored((True, "--a --b", "first"), (False, "--c", "never")) == {
+        "--a": "first", "--b": "first"}  # fmt: skip
+    assert cli.ignored((True, "--a --b", "first"), (True, "--b --c", "later")) == {
+        "--a": "first", "--b": "later", "--c": "later"}  # fmt: skip
+    assert cli.ignored((True, "--b", "first"), (False, "--b", "never")) == {"--b": "first"}
+
+
+def test_refuse_ignored_reads_every_spelling(capsys):
+    for typed in ("--a-b", "--a_b", "--a-b=1", "--a_b=x", "--no-a-b", "--no_a_b", "--no-a_b"):
+        with pytest.raises(SystemExit):
+            cli.refuse_ignored(["--x", "1", typed], {"--a-b": "why"})
+        line = f"error: {typed.split('=')[0]} would be ignored (why): leave it out\n"
+        assert capsys.readouterr().err == line  # as typed
+    cli.refuse_ignored(["--a-bc", "--nu", "--norm-adv"], {"--a-b": "why", "--u": "why"})
+
+
+# row 10: what IPG ignores at nu = 0 without the control variate, and at nu = 1 with it
+NU0_IGNORED = [
+    ["--q-bar", "sample"],
+    ["--off-policy-states", "replay"],
+    ["--off-policy-batch-size", "64"],
+    ["--normalization", "paper"],
+    ["--tau", "0.1"],
+    ["--critic-steps", "10"],
+    ["--critic-learning-rate", "1e-4"],
+    ["--critic-batch-size", "64"],
+    ["--buffer-size", "100000"],
+    ["--learning-starts", "0"],
+    ["--diagnostics-every", "1"],
+    ["--her-n-sampled-goal", "2"],
+    ["--her-goal-selection-strategy", "final"],
+    ["--her"],
+    ["--no-her"],
+]
+RECIPE_NU0_IGNORED = [  # the recipe's critic flags, and its penalties on the off-policy term
+    ["--twin-critic"],
+    ["--action-l2", "1"],
+    ["--bounds-loss", "1"],
+]
+
+
+@pytest.mark.parametrize(
+    "script, argv",
+    [(script, argv) for script in IPG for argv in NU0_IGNORED]
+    + [("ipg_her_recipe", argv) for argv in RECIPE_NU0_IGNORED],
+)
+def test_at_nu_0_without_control_variate_the_critics_flags_are_refused(capsys, script, argv):
+    line = refused(capsys, IPG[script], "--nu", "0", *argv)
+    assert line == f"error: {argv[0]} would be ignored (at --nu 0 without --use-cv no term uses " \
+                   "the critic): leave it out"  # fmt: skip
+    parse(IPG[script], "--nu", "0", "--use-cv", *argv)  # with the control variate they count
+    parse(IPG[script], "--nu", "0.5", *argv)  # and in the middle
+
+
+@pytest.mark.parametrize("script", IPG)
+@pytest.mark.parametrize(
+    "argv, line",
+    [
+        (["--her-n-sampled-goal", "0", "--her-goal-selection-strategy", "final"],
+         "--her-goal-selection-strategy would be ignored (--her-n-sampled-goal 0 relabels no "
+         "goal)"),
+        (["--nu", "1", "--use-cv"], "--use-cv would be ignored (at --nu 1 its on-policy term has "
+         "weight 0)"),
+        (["--use-cv"], "--use-cv would be ignored (at --nu 1 its on-policy term has weight 0)"),
+        (["--no-norm-adv", "--normalization", "paper"],
+         "--normalization would be ignored (--no-norm-adv: nothing to normalise)"),
+        (["--off-policy-states", "batch", "--off-policy-batch-size", "64"],
+         "--off-policy-batch-size would be ignored (--off-policy-states batch)"),
+        (["--env-id", "Hopper-v5", "--her-goal-selection-strategy", "final"],
+         "--her-goal-selection-strategy would be ignored (Hopper-v5 is not a goal task)"),
+    ],
+)  # fmt: skip
+def test_other_ignored_ipg_combinations_are_refused(capsys, script, argv, line):
+    assert refused(capsys, IPG[script], *argv) == f"error: {line}: leave it out"
+
+
+@pytest.mark.parametrize(
+    "argv", [["--tau", "0.1"], ["--critic-steps", "1"], ["--buffer-size", "5000"],
+             ["--learning-starts", "0"], ["--critic-hidden", "64"], ["--normalization", "paper"],
+             ["--critic_learning_rate=1e-4"]],
+)  # fmt: skip
+def test_qprop_without_a_critic_refuses_the_critics_flags(capsys, argv):
+    line = refused(capsys, qprop_ppo, "--eta-mode", "none", *argv)
+    assert line.startswith(f"error: {argv[0].split('=')[0]} would be ignored (--eta-mode none")
+    parse(qprop_ppo, *argv)
+
+
+def test_qprop_without_advantage_normalisation_refuses_a_normalization_mode(capsys):
+    line = refused(capsys, qprop_ppo, "--no-norm-adv", "--normalization", "paper")
+    assert line.startswith("error: --normalization would be ignored (--no-norm-adv")
+
+
+def test_task_defaults_the_run_would_ignore_are_neither_applied_nor_printed(capsys):
+    args = parse(ipg_her_recipe, *PUSH, "--nu", "0")
+    assert capsys.readouterr().out == "defaults for FetchPush-v4: --hidden 256, --target-std 1.0\n"
+    assert (args.twin_critic, args.action_l2, args.normalization) == (False, 0.0, "unbiased")
+    assert (args.hidden, args.target_std) == (256, 1.0)  # the policy's: applied
+    args = parse(ipg_her_recipe, *PUSH, "--nu", "0", "--use-cv")  # the critic counts again
+    assert "--action-l2 1.0, --twin-critic" in capsys.readouterr().out
+    assert args.twin_critic and args.action_l2 == 1.0
+
+
+def test_nu_0_trains_no_critic_and_a_task_without_goals_says_hindsight_is_off(tmp_path):
+    """At nu = 0 without control variate nothing uses the critic: it does not train and the
+    ipg/* diagnostics, which need it, are not measured; Hopper has no goals: one line says that
+    hindsight relabelling is off, before training."""
+    flags = ("--env-id", "Hopper-v5", "--nu", "0", "--total-timesteps", "512", "--num-envs",
+             "2", "--num-steps", "128", "--num-minibatches", "2", "--update-epochs", "1",
+             "--eval-freq", "0", "--eval-episodes", "1", "--eval-workers", "0")  # fmt: skip
+    result = run_script("ipg_her.py", tmp_path, *flags)
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0] == "Hopper-v5 has no goals: hindsight relabelling (HER) is off"
+    assert lines[1].startswith("run folder: ")
+    (run_dir,) = run_dirs(tmp_path)
+    tags = scalars(run_dir)
+    assert "losses/policy_loss" in tags and len(tags["losses/policy_loss"]) == 2
+    assert not {"losses/critic_loss", "losses/q_values", "ipg/grad_var", "ipg/effective_nu"} & set(
+        tags
+    )
+
+
+# rows 14/15: nan and inf in any float flag
+def float_fields(args_class) -> list[str]:
+    hints = typing.get_type_hints(args_class)
+    return [name for name, hint in hints.items() if "float" in str(hint) or hint is float]
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_every_float_flag_refuses_nan_and_inf(capsys, script, value):
+    names = float_fields(SCRIPTS[script].Args)
+    assert {"learning_rate", "beta_init", "kl_target"} <= set(names)
+    assert ("kl_early_stop" in names) == (script == "ppo_kl")  # PPO-KL's alone
+    assert ("target_std" in names) == (script == "ipg_her_recipe")  # a tuple or None
+    for name in names:
+        line = refused(capsys, SCRIPTS[script], cli.flag(name), value)
+        assert line == f"error: {cli.flag(name)} must be a finite number, got {float(value)}"
+
+
+def test_a_tuple_of_floats_refuses_nan_and_none_stays_allowed(capsys):
+    line = refused(capsys, ipg_her_recipe, "--target-std", "1", "nan", "1", "1")
+    assert line == "error: --target-std must be a finite number, got 1.0 nan 1.0 1.0"
+    assert parse(ppo_kl, "--kl-early-stop", "None").kl_early_stop is None
+    assert parse(ipg_her_recipe, "--target-std", "None").target_std is None
+
+
+@pytest.mark.parametrize(
+    "script, argv, needle",
+    [("ppo_kl", ["--learning-rate", "nan"], "--learning-rate must be a finite number, got nan"),
+     ("qprop_ppo", ["--beta-init", "inf"], "--beta-init must be a finite number, got inf"),
+     ("ipg_her", ["--nu", "0", "--tau", "0.1"], "--tau would be ignored"),
+     ("ipg_her", ["--gamma", "1"], "--gamma 1.0 on a goal task"),
+     ("ipg_her_recipe", ["--gamma", "1"], "--gamma 1.0 on a goal task"),
+     ("ppo_kl", ["--torch-threads", "0"], "--torch-threads must be positive"),
+     ("ppo_kl", ["--exp-name", "../../x"], "--exp-name '../../x' must be a plain name"),
+     ("ipg_her", ["--hidden", "100000"], "--hidden 100000 with batches of 256"),
+     ("ipg_her_recipe", ["--off-policy-batch-size", "1000000000"], "batches of 1,000,000,000"),
+     ("qprop_ppo", ["--critic-hidden", "200000"], "--critic-hidden 200000 with")],
+)  # fmt: skip
+def test_refusals_end_to_end_leave_no_run_folder(tmp_path, script, argv, needle):
+    result = run_script(f"{script}.py", tmp_path, *argv, timeout=120)
+    assert_clean_error(result, needle)
+    assert len(result.stderr.strip().splitlines()) == 1, result.stderr  # that line alone
+    assert not (tmp_path.exists() and run_dirs(tmp_path)), "no run folder for rejected input"
+
+
+# row 17: tyro's parse errors, one line each: what the flag expects, what it got
+@pytest.mark.parametrize(
+    "script, argv, line",
+    [
+        ("ppo_kl", ["--total-timesteps", "1e5"], "--total-timesteps expects an integer, got '1e5'"),
+        ("ppo_kl", ["--seed", "1.5"], "--seed expects an integer, got '1.5'"),
+        ("ppo_kl", ["--seed=x"], "--seed expects an integer, got 'x'"),
+        ("qprop_ppo", ["--gamma", "high"], "--gamma expects a number, got 'high'"),
+        ("ppo_kl", ["--kl-early-stop", "x"], "--kl-early-stop expects a number or None, got 'x'"),
+        ("ipg_her_recipe", ["--target-std", "1", "x"],
+         "--target-std expects None, a number or several, got '1 x'"),
+        ("ipg_her", ["--q-bar", "foo"], "--q-bar expects one of (mean, sample), got 'foo'"),
+        ("ipg_her", ["--her_goal_selection_strategy=best"],
+         "--her-goal-selection-strategy expects one of (future, final, episode), got 'best'"),
+        ("qprop_ppo", ["--eta-mode", "x"], "--eta-mode expects one of (batch-conservative, "
+         "batch-aggressive, conservative, aggressive, ones, none), got 'x'"),
+        ("ppo_kl", ["--env-id"], "--env-id expects a value"),
+    ],
+)  # fmt: skip
+def test_a_parse_error_is_one_line_saying_what_the_flag_expects(capsys, script, argv, line):
+    assert refused(capsys, SCRIPTS[script], *argv) == f"error: {line}"
+
+
+# row 18: one flag and its value per error (test_cli.py's test_algorithm_checks); an old task
+# version's current one
+@pytest.mark.parametrize("old, current", [("FetchReach-v1", "FetchReach-v4"),
+                                          ("FetchPush-v1", "FetchPush-v4")])  # fmt: skip
+def test_an_old_task_version_suggests_the_current_one(capsys, old, current):
+    """A mujoco-py task: its name's highest version that constructs, not an unrelated one."""
+    line = refused(capsys, ppo_kl, "--env-id", old)
+    assert line.endswith(f"not support; use {current}") and "Hopper" not in line, line
+    assert refused(capsys, ppo_kl, "--env-id", "Hopper-v2").endswith("use Hopper-v5")
+    assert refused(capsys, ppo_kl, "--env-id", "FetchReach-v9").endswith("FetchReach-v4?")
+
+
+def test_a_task_of_a_users_module_is_imported_first_and_a_missing_one_refused(tmp_path, capsys):
+    """gymnasium's ``module:Task-v0``: the module registers the task (docs/your_goal_task.md), so
+    it is imported before the id is looked up; in a fresh process only that import registers it."""
+    result = run_script("ipg_her.py", tmp_path, "--env-id", "tests.point_goal:PointGoal-v9")
+    assert_clean_error(result, "unknown --env-id 'tests.point_goal:PointGoal-v9'; "
+                               "did you mean tests.point_goal:PointGoal-v0?")  # fmt: skip
+    assert parse(ipg_her, "--env-id", "tests.point_goal:PointGoal-v0").env_id.endswith(
+        ":PointGoal-v0"
+    )
+    line = refused(capsys, ipg_her, "--env-id", "no_such_module:PointGoal-v0")
+    assert "cannot import no_such_module (ModuleNotFoundError" in line, line
+
+
+def test_a_task_without_a_time_limit_or_with_goals_not_vectors_is_refused(capsys):
+    """Replay and evaluation wait for episodes to end; a goal must be a vector (goal_dim)."""
+    from tests.point_goal import PointGoal
+
+    class MatrixGoal(PointGoal):
+        def __init__(self):
+            super().__init__()
+            box = gym.spaces.Box(-1.0, 1.0, (2, 2), np.float64)
+            self.observation_space = gym.spaces.Dict(
+                {"observation": box, "achieved_goal": box, "desired_goal": box}
+            )
+
+    for env_id, entry, limit in (("PointGoalForever-v0", PointGoal, None),
+                                 ("MatrixGoal-v0", MatrixGoal, 50)):  # fmt: skip
+        if env_id not in gym.registry:
+            gym.register(env_id, entry_point=entry, max_episode_steps=limit)
+    line = refused(capsys, ipg_her, "--env-id", "PointGoalForever-v0")
+    assert line == ("error: PointGoalForever-v0 has no time limit: register it with "
+                    "max_episode_steps, so that its episodes end")  # fmt: skip
+    line = refused(capsys, ipg_her, "--env-id", "MatrixGoal-v0")
+    assert line.startswith("error: MatrixGoal-v0's observations are not supported"), line
+
+
+def test_a_goal_task_whose_observations_are_not_its_declared_space_is_refused(capsys):
+    """One reset in the checks, before the run folder exists: a goal 3 long where the space
+    declares 2 would fail deep in the vector env (``Output array is the wrong shape``)."""
+    from tests.point_goal import PointGoal
+
+    class WrongGoal(PointGoal):
+        def _obs(self):
+            return super()._obs() | {"desired_goal": np.zeros(3)}
+
+    if "WrongGoal-v0" not in gym.registry:
+        gym.register("WrongGoal-v0", entry_point=WrongGoal, max_episode_steps=50)
+    assert refused(capsys, ipg_her, "--env-id", "WrongGoal-v0") == (
+        "error: WrongGoal-v0's reset returns an observation 'desired_goal' of shape (3,), its "
+        "observation space declares (2,): make them agree"
+    )
+
+
+def test_capture_video_on_a_task_that_renders_no_frames_says_so(capsys):
+    line = refused(capsys, ipg_her, "--env-id", "tests.point_goal:PointGoal-v0", "--capture-video")
+    assert line == ("error: --capture-video: tests.point_goal:PointGoal-v0 renders no rgb_array "
+                    "frames (render_modes [])")  # fmt: skip
+
+
+# row 19: a task without goals trains without HER, and says so
+@pytest.mark.parametrize("script", IPG)
+def test_ipg_on_a_task_without_goals_says_hindsight_is_off(capsys, script):
+    parse(IPG[script], "--env-id", "Hopper-v5")
+    assert capsys.readouterr().out == "Hopper-v5 has no goals: hindsight relabelling (HER) is off\n"
+    parse(IPG[script], "--env-id", "FetchReach-v4")
+    recipe = ("defaults for FetchReach-v4: --hidden 256, --target-std 1.0, --normalization paper, "
+              "--action-l2 1.0, --twin-critic\n")  # fmt: skip
+    assert capsys.readouterr().out == (recipe if script == "ipg_her_recipe" else "")

@@ -1,11 +1,14 @@
 """common/grasped_start.py: the HER paper's pick-and-place starts (sec. 4.1), on the real task."""
 
+import runpy
+import sys
+
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import assert_clean_error, run_script
+from conftest import ROOT, assert_clean_error, run_script
 
-from common import tasks
+from common import evaluate, tasks
 from common.grasped_start import GraspedStart, refusal
 
 tasks.register_goal_tasks()
@@ -52,3 +55,38 @@ def test_tasks_without_a_free_gripper_are_refused():
 )  # fmt: skip
 def test_the_recipe_refuses_grasped_starts_it_cannot_make(tmp_path, flags, needle):
     assert_clean_error(run_script("ipg_her_recipe.py", tmp_path, *flags), needle)
+
+
+def test_pick_and_place_trains_from_grasped_starts_and_evaluates_from_the_tasks_own(
+    monkeypatch, tmp_path
+):
+    """ipg_her_recipe.py --grasped-start 1: every training episode starts with the object
+    between the fingers (the flag reaches the training envs); every evaluation episode starts as
+    the task does, the object apart on the table (the published success rates are the task's)."""
+    train_gaps, eval_gaps, calls = [], [], [0]
+    reset = GraspedStart.reset
+
+    def recording_reset(self, **kwargs):
+        obs, info = reset(self, **kwargs)
+        train_gaps.append(np.linalg.norm(obs["observation"][6:9]))  # object minus gripper
+        return obs, info
+
+    policy_call = evaluate.Policy.__call__
+
+    def recording_call(self, obs, stochastic=False):
+        if calls[0] % 50 == 0:  # an episode's first step (50 steps each)
+            eval_gaps.append(np.linalg.norm(obs["observation"][6:9]))
+        calls[0] += 1
+        return policy_call(self, obs, stochastic)
+
+    argv = ["ipg_her_recipe.py", "--env-id", "FetchPickAndPlace-v4", "--grasped-start", "1.0",
+            "--total-timesteps", "200", "--critic-steps", "2", "--eval-freq", "100",
+            "--eval-episodes", "3", "--eval-workers", "0", "--log-dir", str(tmp_path)]  # fmt: skip
+    monkeypatch.setattr(GraspedStart, "reset", recording_reset)
+    monkeypatch.setattr(evaluate.Policy, "__call__", recording_call)
+    monkeypatch.setattr(sys, "argv", argv)
+    with pytest.raises(SystemExit) as done:
+        runpy.run_path(str(ROOT / "ipg_her_recipe.py"), run_name="__main__")
+    assert done.value.code == 0
+    assert len(train_gaps) >= 2 and max(train_gaps) < 0.02  # both envs' starts, grasped
+    assert len(eval_gaps) == 6 and min(eval_gaps) > 0.05  # two evaluations of 3, on the table
