@@ -9,6 +9,7 @@ import difflib
 import importlib
 import io
 import os
+import sys
 import warnings
 
 import gymnasium as gym
@@ -24,11 +25,10 @@ def register_goal_tasks() -> None:
     except Exception as e:
         if "MUJOCO_GL" not in os.environ:
             raise
-        from common.cli import fail  # here: cli imports this module
-
-        fail(f"MUJOCO_GL={os.environ['MUJOCO_GL']}: MuJoCo cannot load that renderer "
-             f"({type(e).__name__}); install it (osmesa: apt install libosmesa6) or unset "
-             "MUJOCO_GL, which only --capture-video needs")  # fmt: skip
+        print(f"error: MUJOCO_GL={os.environ['MUJOCO_GL']}: MuJoCo cannot load that renderer "
+              f"({type(e).__name__}); install it (osmesa: apt install libosmesa6) or unset "
+              "MUJOCO_GL, which only --capture-video needs", file=sys.stderr)  # fmt: skip
+        sys.exit(2)
     with contextlib.redirect_stderr(io.StringIO()):
         import gymnasium_robotics
     gym.register_envs(gymnasium_robotics)
