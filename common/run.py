@@ -38,7 +38,8 @@ from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from common import checkpoint, cli, seeding, tasks
-from common.evaluate import BackgroundEvaluator, evaluate_snapshot
+from common.background import BackgroundEvaluator
+from common.evaluate import evaluate_snapshot
 
 
 @dataclass

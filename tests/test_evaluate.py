@@ -241,7 +241,7 @@ def test_capture_video_records_an_mp4_with_frames(tmp_path, script, flags):
 def test_background_evaluator_returns_results_in_submission_order(workers):
     """The worker changes when an evaluation runs, not what it returns or in what order; the
     arguments are copied at submission (a snapshot, whatever training does next)."""
-    from common.evaluate import BackgroundEvaluator
+    from common.background import BackgroundEvaluator
 
     evaluator = BackgroundEvaluator(workers)
     weights = np.array([1.0, 2.0])
@@ -260,7 +260,7 @@ def test_background_evaluator_closes_its_worker_before_returning_once_nothing_is
     Python 3.11 an ``OSError: [Errno 9] Bad file descriptor`` at the end of a finished run)."""
     import multiprocessing
 
-    from common.evaluate import BackgroundEvaluator
+    from common.background import BackgroundEvaluator
 
     evaluator = BackgroundEvaluator(1)
     evaluator.submit(100, np.multiply, 2.0, 3.0)

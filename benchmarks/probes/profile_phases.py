@@ -27,7 +27,8 @@ ROOT = os.path.abspath(os.path.join(__file__, "../../.."))  # the project root
 # (phase, names of which one must be on the stack, the files it must be in, a name that must be
 # outside it): a sample goes to the first phase whose rule its stack matches
 PHASES = (
-    ("evaluation", ("evaluate", "finished", "evaluate_policy"), ("common/evaluate.py",), None),
+    ("evaluation", ("evaluate", "finished", "evaluate_policy"),
+     ("common/evaluate.py", "common/background.py"), None),
     ("stepping", ("SyncVectorEnv.step",), None, None),
     ("replay writes", ("add",), ("common/replay.py", "common/her.py"), None),
     ("replay sampling", ("sample_replay",), None, None),

@@ -47,7 +47,7 @@ def test_the_profile_gives_each_sample_to_its_phase():
         "sample_replay (common/replay.py:130);HerReplayBuffer.sample (common/her.py:90)": 6,
         "rollout (ipg_her.py:240);ReplayBuffer.add (common/replay.py:40)": 3,
         "HerReplayBuffer.add (common/her.py:84);ReplayBuffer.add (common/replay.py:45)": 2,
-        "end_iteration (common/run.py:193);finished (common/evaluate.py:195)": 8,
+        "end_iteration (common/run.py:193);finished (common/background.py:95)": 8,
         "Adam.__init__ (torch/optim/adam.py:35)": 9,
         "Run.end_iteration (common/run.py:190);SummaryWriter.add_scalar (tensorboard.py:1)": 2,
         "QNetwork.forward (ipg_her.py:180);Module._call_impl (torch/nn/modules/module.py:1)": 1,
