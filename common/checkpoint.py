@@ -3,9 +3,11 @@
 ``model.pt`` is one ``torch.save``'d dict: ``format_version``, the run's ``args`` (a dict), the
 reset seeds of its last evaluation (so that ``python -m common.evaluate`` can replay it), and the
 ``state_dict()`` of every part of the model (``agent``, its input ``normalizer`` and any critic),
-with ``normalizer_class`` naming the normaliser: all a policy needs to be rebuilt, without the
-script that trained it. ``resume.pt`` adds what a run needs to go on (optimisers, replay, random
-states, counters), read by ``--resume``; ``python -m common.evaluate`` reads its policy too.
+the kinds of each network's layers (``agent_layers``: ``{"actor_mean": ["Linear", "Tanh", ...]}``)
+and ``normalizer_class`` naming the normaliser: all a policy needs to be rebuilt as the script
+built it, without the script's code. ``resume.pt`` adds what a run needs to go on (optimisers,
+replay, random states, counters), read by ``--resume``; ``python -m common.evaluate`` reads its
+policy too.
 
 Loading a pickle can run any code it names (a shared ``model.pt`` could). Both files are read
 with ``torch.load(weights_only=True)``, which builds tensors and plain Python values only and
@@ -29,7 +31,7 @@ import torch
 
 from common.cli import flag
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3  # 3: the networks' layer kinds beside their weights
 SCRIPT = os.path.basename(sys.argv[0])  # the script running, e.g. ipg_her.py
 RESUME_FILE = "resume.pt"
 # may differ on --resume: how long, how often saved, evaluation workers, the run's label
@@ -65,11 +67,24 @@ def unplain(value):
     return value
 
 
+def layers(module: torch.nn.Module) -> dict[str, list[str]]:
+    """The kinds of the layers of each ``nn.Sequential`` in ``module`` (``["Linear", "Tanh",
+    ...]``): with its weights, what rebuilds the network without the script's code."""
+    children = module.named_children()
+    return {name: [type(layer).__name__ for layer in child]
+            for name, child in children if isinstance(child, torch.nn.Sequential)}  # fmt: skip
+
+
+def with_layers(content: dict, parts: dict) -> dict:
+    """``content`` and, for each network among ``parts``, its ``layers`` as ``NAME_layers``."""
+    return content | {f"{name}_layers": layers(part) for name, part in parts.items()
+                      if isinstance(part, torch.nn.Module)}  # fmt: skip
+
+
 def state(model: dict) -> dict:
-    """The model's parts as state dicts, and the class of its normaliser."""
-    return {name: part.state_dict() for name, part in model.items()} | {
-        "normalizer_class": type(model["normalizer"]).__name__
-    }
+    """The model's parts as state dicts, their networks' layer kinds, the normaliser's class."""
+    parts = {name: part.state_dict() for name, part in model.items()}
+    return with_layers(parts, model) | {"normalizer_class": type(model["normalizer"]).__name__}
 
 
 def not_finite(value, name: str = "") -> list[str]:
@@ -133,7 +148,7 @@ def save_resume_state(run_dir: str, args, **content) -> None:
             return value.get_state()
         return value.bit_generator.state if isinstance(value, np.random.Generator) else value
 
-    content = {key: saved(value) for key, value in content.items()}
+    content = with_layers({key: saved(value) for key, value in content.items()}, content)
     _write({"format_version": FORMAT_VERSION, "script": SCRIPT, "args": dict(vars(args)),
             **content}, os.path.join(run_dir, RESUME_FILE))  # fmt: skip
 
@@ -312,9 +327,8 @@ def _read(path: str) -> dict:
         if not zipfile.is_zipfile(path):  # not torch.save's zip: cut short, or something else
             raise CheckpointError(corrupt(path)) from e
         raise CheckpointError(  # a pickle naming code to run: never loaded
-            f"{path} was refused: it holds more than tensors and plain values (files before "
-            f"format {FORMAT_VERSION} are refused too: retrain, or load them with the code that "
-            "wrote them)"
+            f"{path} was refused: it holds more than tensors and plain values (format 1's "
+            "pickled arrays are refused too: retrain, or load them with the code that wrote them)"
         ) from e
     except Exception as e:  # cut short by a full disk or a copy, or not a torch file at all
         raise CheckpointError(corrupt(path)) from e

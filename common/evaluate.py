@@ -32,7 +32,6 @@ from common import cli  # first: Ctrl-C while torch loads is one line (cli.inter
 import gymnasium as gym
 import numpy as np
 import torch
-import torch.nn.functional as F
 import tyro
 
 from common import checkpoint, seeding, tasks
@@ -66,6 +65,30 @@ def success_of(info: dict):
     return next((info[key] for key in SUCCESS_KEYS if key in info), None)
 
 
+LAYERS = {"Linear": torch.nn.Linear, "Tanh": torch.nn.Tanh, "ReLU": torch.nn.ReLU}  # buildable
+
+
+def network(kinds: list[str] | None, weights: dict, name: str) -> torch.nn.Sequential:
+    """The ``nn.Sequential`` a script saved as ``name``, rebuilt from its layer kinds (data,
+    ``checkpoint.layers``; only ``LAYERS``) and its weights, so that its forward pass is the
+    script's own. Raises ``checkpoint.CheckpointError`` for anything else."""
+    prefix = f"{name}."
+    saved = {k.removeprefix(prefix): v for k, v in weights.items() if k.startswith(prefix)}
+    bad = checkpoint.CheckpointError(f"the saved {name} (layers {kinds}) is not a network of "
+                                     f"{', '.join(LAYERS)} starting Linear")  # fmt: skip
+    if not kinds or not set(kinds) <= LAYERS.keys() or kinds[0] != "Linear":
+        raise bad
+    try:
+        layers = [LAYERS[kind]() if kind != "Linear"
+                  else torch.nn.utils.skip_init(torch.nn.Linear, *saved[f"{i}.weight"].shape[::-1])
+                  for i, kind in enumerate(kinds)]  # fmt: skip
+        net = torch.nn.Sequential(*layers)
+        net.load_state_dict(saved)  # strict: the weights the layers need, and no other
+    except (KeyError, RuntimeError) as e:
+        raise bad from e
+    return net.eval()
+
+
 class Policy:
     """A saved policy as a function of a raw environment observation: ``action = policy(obs)``."""
 
@@ -79,13 +102,9 @@ class Policy:
         else:
             self.normalizer = RunningMeanStd(np.shape(saved["mean"]))
         self.normalizer.load_state_dict(saved)
-        actor = content["agent"]
-        depth = 1 + max(int(k.split(".")[1]) for k in actor if k.startswith("actor_mean."))
-        self.layers = [
-            (actor[f"actor_mean.{i}.weight"], actor[f"actor_mean.{i}.bias"])
-            for i in range(0, depth, 2)
-        ]  # Linear, Tanh, Linear, Tanh, Linear
-        self.log_std = actor["actor_logstd"]
+        kinds = content.get("agent_layers", {}).get("actor_mean")
+        self.actor_mean = network(kinds, content["agent"], "actor_mean")  # the script's mu_theta
+        self.log_std = content["agent"]["actor_logstd"]
         tasks.register_goal_tasks()
         env = gym.make(env_id)
         self.obs_space, action_space = env.observation_space, env.action_space
@@ -96,7 +115,7 @@ class Policy:
         if isinstance(self.normalizer, InputNormalizer):  # observation and desired goal
             keys = [k for k in ("observation", "desired_goal") if k in spaces]
             in_dim = sum(gym.spaces.flatdim(spaces[k]) for k in keys)
-        saved = (self.layers[0][0].shape[1], self.log_std.shape[1])
+        saved = (self.actor_mean[0].in_features, self.log_std.shape[1])
         if (in_dim, action_space.shape[0]) != saved:
             raise ValueError(
                 f"{env_id} does not match the policy trained on {self.args.get('env_id')}: "
@@ -113,9 +132,7 @@ class Policy:
     def __call__(self, obs, stochastic: bool = False) -> np.ndarray:
         x = self.inputs(obs)
         with torch.no_grad():
-            for i, (weight, bias) in enumerate(self.layers):
-                x = F.linear(x, weight, bias)
-                x = torch.tanh(x) if i < len(self.layers) - 1 else x
+            x = self.actor_mean(x)
             if stochastic:
                 x = torch.normal(x, self.log_std.expand_as(x).exp())
         return np.clip(x.numpy()[0], self.low, self.high)

@@ -92,6 +92,34 @@ def test_a_model_or_resume_file_that_would_run_code_is_refused_without_running_i
     assert not marker.exists(), "unpickling ran the file's command"
 
 
+def test_the_policy_is_the_scripts_network_rebuilt_from_its_saved_layer_kinds(
+    hopper_run, tmp_path, capsys
+):
+    """The layer kinds saved beside the weights are data: the policy evaluate runs is the
+    script's own actor (its forward pass, not a copy of it), a changed kind changes it, and a
+    kind outside Linear/Tanh/ReLU or a missing one is refused in one line."""
+    import ppo_kl
+
+    content = torch.load(hopper_run / "model.pt", weights_only=True)
+    assert content["agent_layers"]["actor_mean"] == ["Linear", "Tanh", "Linear", "Tanh", "Linear"]
+    policy = evaluate.load_policy(str(hopper_run / "model.pt"))
+    agent = ppo_kl.Agent(11, 3)  # ppo_kl.py: 64 hidden units
+    agent.load_state_dict(content["agent"])
+    obs = np.random.default_rng(0).normal(size=11).astype(np.float32) * 3
+    with torch.no_grad():
+        mean = agent.actor_mean(policy.inputs(obs))[0].numpy()
+    np.testing.assert_array_equal(policy(obs), np.clip(mean, -1, 1))
+    for kinds, works in ((["Linear", "ReLU", "Linear", "Tanh", "Linear"], True),
+                         (["Linear", "Tanh", "Linear", "Dropout", "Linear"], False),
+                         (["Linear", "Tanh", "Linear"], False), (None, False)):  # fmt: skip
+        content["agent_layers"]["actor_mean"] = kinds
+        torch.save(content, tmp_path / "model.pt")
+        if works:
+            assert not np.array_equal(evaluate.load_policy(str(tmp_path))(obs), policy(obs))
+        else:
+            assert "actor_mean" in refused(capsys, str(tmp_path / "model.pt"))
+
+
 def test_bad_input_gets_one_clear_line(hopper_run, tmp_path, capsys):
     assert "no such file" in refused(capsys, str(tmp_path / "nothing.pt"))
     assert "no model.pt or resume.pt" in refused(capsys, str(tmp_path))
@@ -106,7 +134,7 @@ def test_bad_input_gets_one_clear_line(hopper_run, tmp_path, capsys):
     old = {"format_version": 1, "script": "ppo_kl", "args": {"env_id": "Hopper-v5"},
            "last_eval_seeds": [1], "normalizer": normalizer, "agent": {}}  # fmt: skip
     torch.save(old, tmp_path / "old.pt")
-    assert "files before format 2 are refused" in refused(capsys, str(tmp_path / "old.pt"))
+    assert "format 1's pickled arrays are refused" in refused(capsys, str(tmp_path / "old.pt"))
     assert "NoSuchEnv-v0" in refused(capsys, str(hopper_run), "--env-id", "NoSuchEnv-v0")
     assert "does not match" in refused(capsys, str(hopper_run), "--env-id", "FetchReach-v4")
     assert "--episodes" in refused(capsys, str(hopper_run), "--episodes", "0")
