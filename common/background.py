@@ -6,9 +6,9 @@ process is gone, and a worker that dies costs no evaluation.
 
 import collections
 import contextlib
-import copy
 import multiprocessing
 import os
+import pickle
 import signal
 import sys
 import threading
@@ -24,6 +24,12 @@ def _worker_init(parent: int) -> None:
         signal.signal(s, signal.SIG_IGN)
     torch.set_num_threads(1)
     threading.Thread(target=_exit_with, args=(parent,), daemon=True).start()
+
+
+def _call(evaluate, snapshot: bytes) -> bytes:
+    """``evaluate`` on the arguments pickled in ``snapshot`` (our own, from ``submit``), its
+    result pickled back the same way."""
+    return pickle.dumps(evaluate(*pickle.loads(snapshot)))
 
 
 def _exit_with(parent: int) -> None:
@@ -48,7 +54,7 @@ class BackgroundEvaluator:
     """Evaluations that run in a worker process while training goes on (``workers=1``), or at
     once in this process (``workers=0``): the results are the same, only the wall time differs.
 
-    ``submit(step, evaluate, *args)`` runs ``evaluate(*args)`` on a deep copy of ``args`` taken
+    ``submit(step, evaluate, *args)`` runs ``evaluate(*args)`` on a copy of ``args`` taken
     now (a snapshot of the policy at ``step``); ``finished()`` returns the evaluations that are
     done, in the order they were submitted, as ``(step, result)``; ``finished(wait=True)`` waits
     for all of them. ``evaluate`` must be a module-level function (the worker imports it). A
@@ -65,27 +71,30 @@ class BackgroundEvaluator:
         self.pending, self.warn = collections.deque(), warn
 
     def submit(self, step: int, evaluate, *args) -> None:
-        args, future = copy.deepcopy(args), None
+        # Arguments and result as bytes, by the standard pickler: torch's own (which
+        # multiprocessing would use) shares tensors through a socket in TMPDIR, whose path a
+        # deep TMPDIR makes too long for AF_UNIX (108 bytes).
+        snapshot, future = pickle.dumps(args), None
         if self.pool is not None:  # the first submit starts the worker, signals blocked in it
             try:
                 with blocked_signals():
-                    future = self.pool.submit(evaluate, *args)
+                    future = self.pool.submit(_call, evaluate, snapshot)
             except BrokenProcessPool:
                 self.lost_worker()
         if future is None:
             future = Future()
-            future.set_result(evaluate(*args))
-        self.pending.append((step, future, evaluate, args))
+            future.set_result(_call(evaluate, snapshot))
+        self.pending.append((step, future, evaluate, snapshot))
 
     def finished(self, wait: bool = False) -> list[tuple[int, object]]:
         done = []
         while self.pending and (wait or self.pending[0][1].done()):
-            step, future, evaluate, args = self.pending[0]
+            step, future, evaluate, snapshot = self.pending[0]
             try:
-                result = future.result()  # Ctrl-C here leaves it pending: close() drops it
+                result = pickle.loads(future.result())  # Ctrl-C: left pending, close() drops it
             except BrokenProcessPool:
                 self.lost_worker()
-                result = evaluate(*args)
+                result = pickle.loads(_call(evaluate, snapshot))
             done.append((step, result))
             self.pending.popleft()
         return done

@@ -297,6 +297,25 @@ def test_background_evaluator_closes_its_worker_before_returning_once_nothing_is
     assert multiprocessing.active_children() == []
 
 
+def test_background_evaluator_sends_tensors_under_a_deep_tmpdir(tmp_path):
+    """A snapshot of tensors reaches the worker whatever the TMPDIR: torch's pickler would share
+    them through a socket there, whose path AF_UNIX caps at 108 bytes."""
+    tmpdir = tmp_path / ("d" * max(1, 100 - len(str(tmp_path))))
+    tmpdir.mkdir()
+    code = (
+        "import torch\n"
+        "from common.background import BackgroundEvaluator\n"
+        "evaluator = BackgroundEvaluator(1, warn=print)\n"
+        "evaluator.submit(100, torch.mul, {'w': torch.ones(3)}['w'], 2.0)\n"
+        "print(evaluator.finished(wait=True)[0][1].tolist())\n"
+        "evaluator.close()\n"
+    )
+    env = {**os.environ, "TMPDIR": str(tmpdir)}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                          cwd=ROOT, timeout=120)  # fmt: skip
+    assert done.returncode == 0 and done.stdout == "[2.0, 2.0, 2.0]\n", done.stdout + done.stderr
+
+
 def test_resume_accepts_flags_added_since_at_their_defaults_and_refuses_a_jumping_schedule(
     tmp_path,
 ):
