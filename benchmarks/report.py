@@ -939,6 +939,10 @@ def refuse(message: str) -> int:
 
 
 def main(args: Args) -> int:
+    if args.suite not in SUITES:  # its settings would be guessed and its results.md rewritten
+        known = ", ".join(SUITES)
+        return refuse(f"--suite {args.suite}: not a suite of benchmarks/run.py ({known}); "
+                      "--results-dir names another export folder")  # fmt: skip
     # a bad --page is caught before anything is read or written
     page = Path(args.page)
     start, end = f"<!-- results:{args.suite}:start -->", f"<!-- results:{args.suite}:end -->"
@@ -993,7 +997,7 @@ def main(args: Args) -> int:
     results.mkdir(parents=True, exist_ok=True)
     figures_dir = Path(args.figures_dir or f"docs/img/{results.name}")
     figures_dir.mkdir(parents=True, exist_ok=True)
-    settings = SUITES[args.suite].report if args.suite in SUITES else Report()
+    settings = SUITES[args.suite].report
     if not args.from_export:
         export.write_text(json.dumps(groups, separators=(",", ":")))
     rng = np.random.default_rng(args.seed)

@@ -178,10 +178,11 @@ def test_page_gets_the_block_between_its_markers_and_the_figures_beside_it(tmp_p
 def test_rows_merged_from_an_earlier_export_are_marked(tmp_path):
     """--merge-export keeps rows the runs lack (say, Hopper runs not re-run on new code), marked
     with † and named in the note; rows the runs have come from the runs."""
-    old, new = tmp_path / "runs" / "old", tmp_path / "runs" / "paper"
+    old, new = tmp_path / "old_runs" / "paper", tmp_path / "runs" / "paper"
     write_run(old, "algo", "Hopper-v5", 1, [100.0] * 10)
     write_run(old, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 0.0])
-    assert report.main(report_args(tmp_path, "old", results_dir=str(tmp_path / "old"))) == 0
+    folders = {"runs_dir": str(tmp_path / "old_runs"), "results_dir": str(tmp_path / "old")}
+    assert report.main(report_args(tmp_path, "paper", **folders)) == 0
     write_run(new, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [1.0, 1.0])
     args = report_args(tmp_path, "paper", merge_export=str(tmp_path / "old" / "curves.json"),
                        merge_label="commit abc")  # fmt: skip
@@ -669,3 +670,16 @@ def test_a_suites_report_settings_are_its_entry_in_run_py_not_branches_on_its_na
         )
     assert reach == {"goals": False, "fetch": True}
     assert report.SUITES["goals"].report.levels == () and report.SUITES["fetch"].report.levels
+
+
+def test_a_suite_run_py_does_not_know_is_refused_before_anything_is_written(tmp_path):
+    """``--suite fetch_fresh`` (an export folder's name, not a suite): its settings would be
+    guessed and the committed results.md in that folder rewritten with them."""
+    (tmp_path / "fetch_fresh").mkdir()
+    (tmp_path / "fetch_fresh" / "curves.json").write_text('{"a__FetchPush-v4": {"1": {}}}')
+    before = snapshot(tmp_path)
+    folders = ["--results-dir", str(tmp_path / "fetch_fresh"), "--figures-dir", str(tmp_path)]
+    cmd = [sys.executable, "benchmarks/report.py", "--suite", "fetch_fresh", "--from-export"]
+    result = subprocess.run(cmd + folders, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert_clean_error(result, "--suite fetch_fresh: not a suite", "--results-dir")
+    assert snapshot(tmp_path) == before
