@@ -13,7 +13,8 @@ The variant: ``ipg_her.py`` plus the recipe the hard Fetch tasks need (docs/ipg_
 one measured on them: twin critics (TD3, Fujimoto et al. 2018), an entropy-targeted sigma (SAC's
 alpha rule, Haarnoja et al. 2018), an action penalty (OpenAI's HER) and a bounds loss (rl_games),
 annealed learning rates and grasped starts (HER sec. 4.1). Every goal task takes the twin critics,
-the sigma rule and the action penalty (RECIPE); PickAndPlace and Slide rows of their own.
+the action penalty, a sigma rule per action dimension, its horizon's discount and, where an
+object can be held, grasped starts (task_defaults), with no row of its own.
 """
 
 import copy
@@ -42,23 +43,29 @@ torch.distributions.Distribution.set_default_validate_args(False)  # its checks 
 SUCCESS_KEYS = ("is_success", "success")  # a goal task's success flag: Fetch's, the mazes'
 BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
 RECIPE = dict(
-    hidden=256, target_std=1.0, normalization="paper", action_l2=1.0, twin_critic=True
-)  # every goal task's defaults, each one measured on FetchPush (docs)
-TASK_DEFAULTS = {  # the two tasks with rows of their own; sigma per x, y, z, gripper
-    "FetchPickAndPlace-v4": RECIPE | dict(grasped_start=0.5, target_std=(1.0, 1.0, 1.0, 0.3)),
-    "FetchSlide-v4": RECIPE | dict(target_std=(0.3, 0.3, 0.3, 1.0), action_l2=0.0,
-                                   bounds_loss=1.0, anneal_lr=True)}  # fmt: skip
+    hidden=256, normalization="paper", action_l2=1.0, twin_critic=True
+)  # every goal task's, each one measured on FetchPush (docs); task_defaults adds the rest
 
 
 def task_defaults(env_id: str) -> dict:
-    """The task's row of TASK_DEFAULTS, else on a goal task the RECIPE, else none."""
-    return TASK_DEFAULTS.get(tasks.task_name(env_id)) or (RECIPE if tasks.goal_task(env_id) else {})
+    """A goal task's defaults: the RECIPE, and from the task itself one sigma rule per action
+    dimension at min(1, 2 / sqrt(d)) on its d dimensions (a noise vector of length 2, no
+    dimension's sigma above 1), the discount 1 - 1/H of its H-step episodes and, where the
+    gripper can hold the object, grasped starts for half of the episodes. Else none."""
+    if not tasks.goal_task(env_id):
+        return {}
+    env = gym.make(env_id)
+    d, horizon = env.action_space.shape[0], env.spec.max_episode_steps
+    env.close()
+    own = dict(target_std=(round(min(1.0, 2 / d**0.5), 3),) * d)  # 0.447 on 20 joints
+    own |= dict(gamma=1 - 1 / horizon) if horizon else {}  # none: cli refuses the task
+    return RECIPE | own | (dict(grasped_start=0.5) if refusal(env_id) is None else {})
 
 
 @dataclass
 class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     """IPG with HER and the hard tasks' recipe (docs/ipg_her_recipe.md). A goal task takes the
-    recipe's defaults (RECIPE); FetchPickAndPlace and FetchSlide their own (TASK_DEFAULTS)."""
+    recipe's defaults (task_defaults: the RECIPE and what follows from the task's spaces)."""
 
     env_id: str = "FetchReach-v4"
     """the id of the gymnasium environment"""
@@ -73,7 +80,7 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     anneal_lr: bool = False
     """anneal the learning rates (the policy's and the critic's) linearly to zero"""
     gamma: float = 0.98
-    """the discount factor gamma (0.98: OpenAI's HER recipe)"""
+    """the discount factor gamma (a goal task's: 1 - 1/H, H its episode length)"""
     gae_lambda: float = 0.95
     """lam of GAE (eq. 4)"""
     num_minibatches: int = 1
@@ -131,9 +138,11 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
 
     # the recipe
     target_std: float | tuple[float, ...] | None = None
-    """the sigma rule: hold H(pi) at H(N(0, target_std^2)) per action, or one each (None: off)"""
+    """the sigma rule: hold H(pi) at H(N(0, target_std^2)) per action, or one each (None: off;
+    a goal task's: min(1, 2 / sqrt(d)) on each of its d action dimensions)"""
     grasped_start: float = 0.0
-    """share of training episodes started with the object in the gripper (the HER paper's 0.5)"""
+    """share of training episodes started with the object in the gripper (a goal task whose
+    gripper can hold its object: the HER paper's 0.5)"""
     action_l2: float = 0.0
     """weight of the penalty mean(mu(s)^2) beside the off-policy term (OpenAI's HER: 1)"""
     bounds_loss: float = 0.0

@@ -27,12 +27,16 @@ the suite's seeds or its own; ``--seeds`` replaces them):
   fresh seeds, its variants (narrow noise, the critic's term at scale 1, a sampled target), and
   nu 1 to 1M on a seed of its own.
 - ``push``: the paper's IPG+HER (``ipg_her.py``, no recipe) on FetchPush, ``--push-steps`` each.
-- ``fetch``: the recipe with no flag but the task's budget on Push, PickAndPlace and Slide, fresh
-  seeds; one critic, mixing at nu 0.5 and 0.8, and each task's earlier defaults beside it.
-- ``goals``: the recipe's defaults, no flag but the budget, on goal tasks none of its settings
-  was chosen on: the Shadow hand (HandReach, HandManipulateBlockRotateZ) and PointMaze_Medium;
-  on PointMaze also with ``--gamma 0.995``, the setting it lacks (chosen on seeds 11-12), and on
-  HandReach with ``--target-std 0.3``, summed and one rule per joint (chosen on seed 11).
+- ``fetch``: the recipe on Push, PickAndPlace and Slide with each task's defaults when it ran
+  (spelled out: its own rows then) and the task's budget, fresh seeds; one critic, mixing at nu
+  0.5 and 0.8, and each task's earlier defaults beside it.
+- ``goals``: the recipe's defaults when it ran (spelled out), no other flag but the budget, on
+  goal tasks none of its settings was chosen on: the Shadow hand (HandReach,
+  HandManipulateBlockRotateZ) and PointMaze_Medium; on PointMaze also with ``--gamma 0.995``,
+  the setting it lacked (chosen on seeds 11-12), and on HandReach with ``--target-std 0.3``,
+  summed and one rule per joint (chosen on seed 11).
+- ``one_recipe``: the defaults as ``task_defaults`` derives them from each task, no flag but the
+  budget, on all six goal tasks at their budgets, seeds 401-403, which chose nothing.
 """
 
 import ctypes
@@ -61,7 +65,7 @@ class Args:
     """Run a suite of script x task x seed, one process each; a later call resumes it."""
 
     suite: Literal["paper", "ablations", "eta", "mixing", "push", "fetch", "hopper", "goals",
-                   "quick"]  # fmt: skip
+                   "one_recipe", "quick"]  # fmt: skip
     """which grid (the module's docstring): quick takes seconds, paper hours"""
     seeds: tuple[int, ...] = ()
     """override the suite's seeds"""
@@ -144,7 +148,15 @@ TD3_NARROW = (*[f if f != "0.3" else "0.1" for f in TD3], "--kl-target", "0.9",
               "--bounds-loss", "1.0")  # fmt: skip
 FETCH_EVERY = ("--eval-freq", "10000", "--eval-episodes", "50", "--resume-freq", "50000")
 ONE_CRITIC = ("--no-twin-critic",)  # the recipe's defaults before the twin critic
-PICK_ONE_SIGMA = ("--total-timesteps", "500000", *FETCH_EVERY, "--target-std", "1.0")
+# The recipe's defaults when the fetch and goals suites ran, before task_defaults derived them
+# from the task, spelled out so that their commands still run what ran: one sigma rule summed
+# over the action dimensions at 1 and gamma 0.98 on every goal task; PickAndPlace's and Slide's
+# rows of their own (PickAndPlace's grasped starts, 0.5, are what task_defaults gives it now).
+SUMMED = ("--target-std", "1.0")
+PICK_ROW = ("--target-std", "1.0", "1.0", "1.0", "0.3")
+SLIDE_ROW = ("--target-std", "0.3", "0.3", "0.3", "1.0", "--action-l2", "0.0", "--bounds-loss",
+             "1.0")  # and --anneal-lr  # fmt: skip
+PICK_ONE_SIGMA = ("--total-timesteps", "500000", *FETCH_EVERY, *SUMMED)
 SLIDE_CONSTLR = ("--total-timesteps", "1000000", *FETCH_EVERY, "--no-anneal-lr")
 PUSH_BUDGET = ("--total-timesteps", "{steps}", "--eval-freq", "25000", "--resume-freq", "50000")
 TINY = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4", "--update-epochs", "2",
@@ -259,13 +271,14 @@ SUITES: dict[str, Suite] = {
     # every row on seeds of its own, fresh ones unless said; figures in steps, median seed
     "fetch": Suite((), Report(per_episode=False, median=True, levels=(0.5, 0.7, 0.9),
                               budgets=(100_000, 150_000, 200_000, 300_000, 500_000, 1_000_000)), [
-        ("ipg_her_300k", RECIPE, PUSH, ("--total-timesteps", "300000", *FETCH_EVERY),
+        ("ipg_her_300k", RECIPE, PUSH, ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED),
          (4, 5, 6, 7, 8)),
         ("ipg_her_1critic_300k", RECIPE, PUSH,
-         ("--total-timesteps", "300000", *FETCH_EVERY, *ONE_CRITIC), (4, 5, 6, 7, 8)),
-        ("ipg_her_500k", RECIPE, PICK, ("--total-timesteps", "500000", *FETCH_EVERY), (4, 5, 6)),
-        ("ipg_her_1000k", RECIPE, SLIDE, ("--total-timesteps", "1000000", *FETCH_EVERY),
-         (7, 8, 9)),
+         ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED, *ONE_CRITIC), (4, 5, 6, 7, 8)),
+        ("ipg_her_500k", RECIPE, PICK, ("--total-timesteps", "500000", *FETCH_EVERY, *PICK_ROW),
+         (4, 5, 6)),
+        ("ipg_her_1000k", RECIPE, SLIDE,
+         ("--total-timesteps", "1000000", *FETCH_EVERY, *SLIDE_ROW, "--anneal-lr"), (7, 8, 9)),
         # PickAndPlace's earlier defaults, one sigma rule for all dimensions: with grasped starts,
         # and before them (on the tuning seeds) with and without the twin critic
         ("ipg_her_grasped_500k", RECIPE, PICK, PICK_ONE_SIGMA, (4, 5, 6)),
@@ -275,13 +288,13 @@ SUITES: dict[str, Suite] = {
          (*PICK_ONE_SIGMA, "--grasped-start", "0", *ONE_CRITIC), (1, 2, 3)),
         # Slide before its annealed learning rates: its own defaults then, and Push's (one sigma
         # rule for all dimensions, the action penalty) on the tuning seeds
-        ("ipg_her_constlr_1000k", RECIPE, SLIDE, SLIDE_CONSTLR, (4, 5, 6)),
+        ("ipg_her_constlr_1000k", RECIPE, SLIDE, (*SLIDE_CONSTLR, *SLIDE_ROW), (4, 5, 6)),
         ("ipg_her_sigma1_1000k", RECIPE, SLIDE, (*SLIDE_CONSTLR, "--target-std", "1.0",
          "--action-l2", "1.0", "--bounds-loss", "0.0"), (1, 2, 3)),
         # mixing on Push, nu 0.8 and 0.5 at 200k; Push's --normalization paper weighs the terms
         # nu sigma_A : (1 - nu), so eq. 10's nu is "_eq10"
         *[(f"ipg_her{kind}_nu{nu}_200k", RECIPE, PUSH,
-           ("--total-timesteps", "200000", "--nu", nu, *FETCH_EVERY, *flags), (4, 5, 6))
+           ("--total-timesteps", "200000", "--nu", nu, *FETCH_EVERY, *SUMMED, *flags), (4, 5, 6))
           for kind, flags in (("", ()), ("_1critic", ONE_CRITIC),
                               ("_eq10", ("--normalization", "unbiased")))
           for nu in ("0.8", "0.5")],
@@ -289,17 +302,30 @@ SUITES: dict[str, Suite] = {
     # the recipe's defaults on goal tasks no run was tuned on; figures in steps (a maze's
     # episode is not 50 steps)
     "goals": Suite((301, 302, 303), Report(per_episode=False), [
-        ("ipg_her_300k", RECIPE, "HandReach-v3", ("--total-timesteps", "300000", *FETCH_EVERY)),
+        ("ipg_her_300k", RECIPE, "HandReach-v3",
+         ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED)),
         ("ipg_her_300k_std03", RECIPE, "HandReach-v3",  # chosen on seed 11
          ("--total-timesteps", "300000", "--target-std", "0.3", *FETCH_EVERY)),
         ("ipg_her_300k_std03x20", RECIPE, "HandReach-v3",  # one rule per joint, chosen on seed 11
          ("--total-timesteps", "300000", "--target-std", *["0.3"] * 20, *FETCH_EVERY)),
         ("ipg_her_1000k", RECIPE, "HandManipulateBlockRotateZ-v1",
-         ("--total-timesteps", "1000000", *FETCH_EVERY)),
+         ("--total-timesteps", "1000000", *FETCH_EVERY, *SUMMED, "--gamma", "0.98")),
         ("ipg_her_300k", RECIPE, "PointMaze_Medium-v3",
-         ("--total-timesteps", "300000", *FETCH_EVERY)),
+         ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED, "--gamma", "0.98")),
         ("ipg_her_300k_gamma0995", RECIPE, "PointMaze_Medium-v3",  # chosen on seeds 11-12
-         ("--total-timesteps", "300000", "--gamma", "0.995", *FETCH_EVERY)),
+         ("--total-timesteps", "300000", "--gamma", "0.995", *FETCH_EVERY, *SUMMED)),
+    ]),
+    # the recipe's defaults as task_defaults derives them, no flag but the budget, on every
+    # goal task, seeds none of its settings was chosen on; figures in steps (a maze's episode
+    # is not 50 steps)
+    "one_recipe": Suite((401, 402, 403), Report(per_episode=False, median=True,
+                        levels=(0.5, 0.7, 0.9), budgets=(100_000, 150_000, 300_000, 500_000,
+                                                          1_000_000)), [
+        (f"ipg_her_{steps // 1000}k", RECIPE, env_id,
+         ("--total-timesteps", str(steps), *FETCH_EVERY))
+        for env_id, steps in ((PUSH, 300_000), (PICK, 500_000), (SLIDE, 1_000_000),
+                              ("HandReach-v3", 300_000), ("PointMaze_Medium-v3", 300_000),
+                              ("HandManipulateBlockRotateZ-v1", 1_000_000))
     ]),
     "quick": Suite((1,), Report(figures="paper"), [  # the paper's grid, tiny budgets
         ("ppo_kl", PPO, HOPPER, ("--total-timesteps", "512", *TINY)),

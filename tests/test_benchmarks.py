@@ -8,6 +8,7 @@ import pytest
 from conftest import scalars
 
 from benchmarks import report, run
+from common import cli
 
 
 def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path, capsys):
@@ -92,17 +93,25 @@ def test_a_dry_run_piped_into_head_ends_quietly():
     assert proc.returncode == 0 and "Error" not in stderr, stderr
 
 
-def test_the_goals_suite_runs_the_recipes_defaults_with_no_flag_but_the_budget():
-    """Goal tasks no setting was chosen on, three fresh seeds each, no flag that could tune: the
-    budget, evaluation every 10,000 steps on 50 episodes, resume points. Each task takes the
-    RECIPE: none has a row of its own. The exceptions are named, each beside its task's
-    defaults: PointMaze with the discount it lacks, HandReach with a narrower sigma target (summed
-    and one rule per joint)."""
-    import ipg_her_recipe as recipe
+def without(flags: tuple[str, ...], *parts: tuple[str, ...]) -> tuple[str, ...]:
+    """``flags`` with each of ``parts`` (a run of consecutive flags and values) taken out once."""
+    for part in parts:
+        at = next((i for i in range(len(flags)) if flags[i : i + len(part)] == part), None)
+        flags = flags if at is None else flags[:at] + flags[at + len(part) :]
+    return flags
 
+
+def test_the_goals_suite_runs_the_recipes_defaults_then_with_no_flag_but_the_budget():
+    """Goal tasks no setting was chosen on, three fresh seeds each, no flag that could tune: the
+    budget, evaluation every 10,000 steps on 50 episodes, resume points, and the defaults the
+    recipe had when they ran, spelled out (the summed sigma rule at 1, gamma 0.98: see
+    test_the_fetch_and_goals_suites_still_run_what_ran). The exceptions are named, each beside its
+    task's defaults: PointMaze with the discount it lacked, HandReach with a narrower sigma
+    target (summed and one rule per joint)."""
     runs = run.suite_runs("goals")
     flag = re.compile(r"(--\S+) ([^-\s]\S*(?: [^-\s]\S*)*)")  # a flag and its values
-    budgets = {(r.name, r.env_id, r.seed): dict(flag.findall(" ".join(r.flags)))
+    then = (run.SUMMED, ("--gamma", "0.98"))
+    budgets = {(r.name, r.env_id, r.seed): dict(flag.findall(" ".join(without(r.flags, *then))))
                for r in runs if r.script == "ipg_her_recipe.py"}  # fmt: skip
     assert len(budgets) == len(runs) == 18
     assert {seed for *_, seed in budgets} == {301, 302, 303}
@@ -119,30 +128,76 @@ def test_the_goals_suite_runs_the_recipes_defaults_with_no_flag_but_the_budget()
         assert flags == {
             "--total-timesteps": steps[env_id], "--eval-freq": "10000", "--eval-episodes": "50",
             "--resume-freq": "50000", **extra}  # fmt: skip
-        assert recipe.task_defaults(env_id) == recipe.RECIPE
+
+
+def test_the_one_recipe_suite_runs_every_goal_task_with_no_flag_but_the_budget():
+    """The defaults as task_defaults derives them, on seeds that chose nothing (401-403): each
+    goal task at its budget, evaluated every 10,000 steps on 50 episodes, resumable, no other
+    flag."""
+    runs = run.suite_runs("one_recipe")
+    budgets = {"FetchPush-v4": 300_000, "FetchPickAndPlace-v4": 500_000, "FetchSlide-v4": 10**6,
+               "HandReach-v3": 300_000, "PointMaze_Medium-v3": 300_000,
+               "HandManipulateBlockRotateZ-v1": 10**6}  # fmt: skip
+    assert sorted((r.env_id, r.seed) for r in runs) == sorted(
+        (env_id, seed) for env_id in budgets for seed in (401, 402, 403)
+    )
+    for r in runs:
+        assert r.script == "ipg_her_recipe.py" and r.name == f"ipg_her_{budgets[r.env_id] // 1000}k"
+        assert r.flags == ("--total-timesteps", str(budgets[r.env_id]), *run.FETCH_EVERY)
+
+
+def test_the_fetch_and_goals_suites_still_run_what_ran():
+    """Their exports were run when the recipe's defaults were RECIPE's summed sigma rule at 1,
+    gamma 0.98 and rows for PickAndPlace and Slide: every run of theirs, parsed as the script
+    parses it now, gets the arguments those defaults gave it, so the commands on the results
+    page still run what they report."""
+    import ipg_her_recipe as recipe
+
+    recipe_then = dict(hidden=256, target_std=1.0, normalization="paper", action_l2=1.0,
+                       twin_critic=True)  # fmt: skip
+    rows_then = {
+        "FetchPickAndPlace-v4": recipe_then | dict(grasped_start=0.5,
+                                                   target_std=(1.0, 1.0, 1.0, 0.3)),
+        "FetchSlide-v4": recipe_then | dict(target_std=(0.3, 0.3, 0.3, 1.0), action_l2=0.0,
+                                            bounds_loss=1.0, anneal_lr=True),
+    }  # fmt: skip
+    runs = run.suite_runs("fetch") + run.suite_runs("goals")
+    assert len(runs) == 67
+    for r in runs:
+        argv = ["--env-id", r.env_id, *r.flags]
+        now = cli.parse_args(recipe.Args, argv, task_defaults=recipe.task_defaults,
+                             ignored=recipe.ignored)  # fmt: skip
+        then = cli.parse_args(recipe.Args, argv, ignored=recipe.ignored,
+                              task_defaults=lambda e: rows_then.get(e, recipe_then))  # fmt: skip
+        assert vars(now) == vars(then), (r.name, r.env_id)
 
 
 def test_the_fetch_suite_runs_the_recipe_with_no_flag_but_the_budget_and_evaluation_grid():
     """The fetch grid, all of it ``ipg_her_recipe.py``: Push 5 seeds x 300k, PickAndPlace 3 x
-    500k, Slide 3 x 1M, evaluated every 10,000 steps on 50 episodes, resumable; nothing else of
-    the defaults is changed but nu in the mixing runs (0.5 and 0.8 on Push, 3 seeds x 200k), one
-    critic on Push and in the mixing runs (``_1critic``: the defaults before the twin critic),
-    eq. 10's nu (``_eq10``: ``--normalization unbiased``, as Push's default weighs nu sigma_A),
-    and PickAndPlace with its earlier single sigma rule (``--target-std 1.0``): with grasped
-    starts on the fresh seeds (``_grasped``), without them on the seeds they were tuned on
-    (``_nograsp``, with and without twin), and Slide with Push's defaults on the seeds its own
-    were tuned on (``_sigma1``)."""
+    500k, Slide 3 x 1M, evaluated every 10,000 steps on 50 episodes, resumable, with each task's
+    defaults when it ran spelled out; nothing else of those defaults is changed but nu in the
+    mixing runs (0.5 and 0.8 on Push, 3 seeds x 200k), one critic on Push and in the mixing runs
+    (``_1critic``: the defaults before the twin critic), eq. 10's nu (``_eq10``:
+    ``--normalization unbiased``, as Push's default weighs nu sigma_A), and PickAndPlace with its
+    earlier single sigma rule (``--target-std 1.0``): with grasped starts on the fresh seeds
+    (``_grasped``), without them on the seeds they were tuned on (``_nograsp``, with and without
+    twin), and Slide with Push's defaults on the seeds its own were tuned on (``_sigma1``)."""
     runs = run.suite_runs("fetch")
     budgets = {}
     for r in runs:
         assert r.script == "ipg_her_recipe.py"
-        critics = "1" if "--no-twin-critic" in r.flags else "2"
+        then = {"FetchPush-v4": (run.SUMMED,), "FetchPickAndPlace-v4": (run.PICK_ROW,),
+                "FetchSlide-v4": (run.SLIDE_ROW, ("--anneal-lr",))}[r.env_id]  # fmt: skip
+        r_flags = (
+            r.flags if "_grasped" in r.name or "_nograsp" in r.name else without(r.flags, *then)
+        )
+        critics = "1" if "--no-twin-critic" in r_flags else "2"
         assert (critics == "1") == ("_1critic" in r.name)
-        constlr = "--no-anneal-lr" in r.flags  # Slide's earlier defaults, and Push's on Slide
+        constlr = "--no-anneal-lr" in r_flags  # Slide's earlier defaults, and Push's on Slide
         assert constlr == (
             r.env_id == "FetchSlide-v4" and ("_constlr" in r.name or "_sigma1" in r.name)
         )
-        pairs = [f for f in r.flags if f not in ("--no-twin-critic", "--no-anneal-lr")]
+        pairs = [f for f in r_flags if f not in ("--no-twin-critic", "--no-anneal-lr")]
         flags = dict(zip(pairs[::2], pairs[1::2], strict=True))
         nu = flags.pop("--nu", "1.0")  # the mixing runs: nu alone differs
         std = flags.pop("--target-std", None)  # Slide's and PickAndPlace's earlier sigma rule

@@ -260,34 +260,41 @@ def test_a_renderer_that_cannot_load_is_refused_before_training(tmp_path):
     assert not tmp_path.exists() or not run_dirs(tmp_path)
 
 
-def test_a_tasks_own_defaults_apply_where_no_flag_was_given(capsys):
-    """ipg_her_recipe.py's task_defaults: a goal task without a row (FetchPush, the Shadow hand,
-    a maze, FetchReach) takes the RECIPE, a flag given wins, PickAndPlace and Slide take their
-    rows, a task without goals keeps the Args defaults; one line names what was taken."""
+def test_a_goal_tasks_defaults_follow_from_the_task_and_a_flag_given_wins(capsys):
+    """ipg_her_recipe.py's task_defaults, one rule for every goal task and no row for any: the
+    RECIPE, sigma min(1, 2 / sqrt(d)) on each of d action dimensions, gamma 1 - 1/H for H-step
+    episodes, grasped starts where the gripper can hold the object; a flag given wins, a task
+    without goals keeps the Args defaults; one line names what was taken."""
 
     def parse(*argv):
         return cli.parse_args(ipg_her_recipe.Args, list(argv),
                               task_defaults=ipg_her_recipe.task_defaults)  # fmt: skip
 
     push = parse("--env-id", "FetchPush-v4", "--hidden=64")
-    taken = (push.hidden, push.target_std, push.normalization, push.action_l2)
-    assert taken == (64, 1.0, "paper", 1.0)
-    line = "FetchPush-v4: --target-std 1.0, --normalization paper, --action-l2 1.0, --twin-critic\n"
+    taken = (push.hidden, push.target_std, push.gamma, push.grasped_start, push.action_l2)
+    assert taken == (64, (1.0,) * 4, 0.98, 0.0, 1.0)
+    line = ("FetchPush-v4: --normalization paper, --action-l2 1.0, --twin-critic, "
+            "--target-std 1.0 1.0 1.0 1.0, --gamma 0.98\n")  # fmt: skip
     assert capsys.readouterr().out.endswith(line)  # spelled as one would type them
-    for env_id in ("HandReach-v3", "PointMaze_Medium-v3", "FetchReach-v4"):
+    own = {  # d action dimensions, H steps an episode, whether the object can be held
+        "FetchReach-v4": ((1.0,) * 4, 0.98, 0.0),
+        "FetchPickAndPlace-v4": ((1.0,) * 4, 0.98, 0.5),
+        "FetchSlide-v4": ((1.0,) * 4, 0.98, 0.0),  # its gripper is blocked
+        "HandReach-v3": ((0.447,) * 20, 0.98, 0.0),  # 2 / sqrt(20)
+        "HandManipulateBlockRotateZ-v1": ((0.447,) * 20, 0.99, 0.0),  # 100 steps
+        "PointMaze_Medium-v3": ((1.0, 1.0), 1 - 1 / 600, 0.0),
+    }
+    for env_id, (target_std, gamma, grasped_start) in own.items():
+        computed = dict(target_std=target_std, gamma=gamma, grasped_start=grasped_start)
         assert vars(parse("--env-id", env_id)) == vars(ipg_her_recipe.Args(env_id=env_id)) | (
-            ipg_her_recipe.RECIPE)  # fmt: skip
+            ipg_her_recipe.RECIPE | computed)  # fmt: skip
         assert capsys.readouterr().out.startswith(f"defaults for {env_id}: --hidden 256,")
     assert vars(parse("--env-id", "Hopper-v5")) == vars(ipg_her_recipe.Args(env_id="Hopper-v5"))
     assert capsys.readouterr().out == ""
     assert parse("--env-id", "FetchPush-v4").twin_critic  # a boolean default of the task's
     assert not parse("--env-id", "FetchPush-v4", "--no-twin-critic").twin_critic  # the flag wins
-    assert parse("--env-id", "FetchPickAndPlace-v4").target_std == (1.0, 1.0, 1.0, 0.3)
-    assert "--target-std 1.0 1.0 1.0 0.3," in capsys.readouterr().out  # a tuple as typed
-    slide = parse("--env-id", "FetchSlide-v4")  # Push's, but narrow sigma and mu kept in bounds
-    assert (slide.target_std, slide.action_l2, slide.bounds_loss) == ((0.3, 0.3, 0.3, 1.0), 0, 1)
-    assert (slide.hidden, slide.normalization, slide.twin_critic) == (256, "paper", True)
-    assert slide.anneal_lr and not parse("--env-id", "FetchPush-v4").anneal_lr  # Slide's only
+    assert parse("--env-id", "FetchPush-v4", "--target-std", "0.3").target_std == 0.3
+    assert not hasattr(ipg_her_recipe, "TASK_DEFAULTS")  # no task has a row of its own
 
 
 IPG = {"ipg_her": ipg_her, "ipg_her_recipe": ipg_her_recipe}  # the recipe keeps IPG's checks
@@ -428,9 +435,11 @@ def test_qprop_without_advantage_normalisation_refuses_a_normalization_mode(caps
 
 def test_task_defaults_the_run_would_ignore_are_neither_applied_nor_printed(capsys):
     args = parse(ipg_her_recipe, *PUSH, "--nu", "0")
-    assert capsys.readouterr().out == "defaults for FetchPush-v4: --hidden 256, --target-std 1.0\n"
+    assert capsys.readouterr().out == (
+        "defaults for FetchPush-v4: --hidden 256, --target-std 1.0 1.0 1.0 1.0, --gamma 0.98\n"
+    )
     assert (args.twin_critic, args.action_l2, args.normalization) == (False, 0.0, "unbiased")
-    assert (args.hidden, args.target_std) == (256, 1.0)  # the policy's: applied
+    assert (args.hidden, args.target_std) == (256, (1.0,) * 4)  # the policy's: applied
     args = parse(ipg_her_recipe, *PUSH, "--nu", "0", "--use-cv")  # the critic counts again
     assert "--action-l2 1.0, --twin-critic" in capsys.readouterr().out
     assert args.twin_critic and args.action_l2 == 1.0
@@ -601,6 +610,6 @@ def test_ipg_on_a_task_without_goals_says_hindsight_is_off(capsys, script):
     parse(IPG[script], "--env-id", "Hopper-v5")
     assert capsys.readouterr().out == "Hopper-v5 has no goals: hindsight relabelling (HER) is off\n"
     parse(IPG[script], "--env-id", "FetchReach-v4")
-    recipe = ("defaults for FetchReach-v4: --hidden 256, --target-std 1.0, --normalization paper, "
-              "--action-l2 1.0, --twin-critic\n")  # fmt: skip
+    recipe = ("defaults for FetchReach-v4: --hidden 256, --normalization paper, --action-l2 1.0, "
+              "--twin-critic, --target-std 1.0 1.0 1.0 1.0, --gamma 0.98\n")  # fmt: skip
     assert capsys.readouterr().out == (recipe if script == "ipg_her_recipe" else "")

@@ -162,14 +162,14 @@ def test_smoke(tmp_path, script, env_id, flags):
     assert_saved_policy_replays_last_evaluation(run_dir, env_id)
 
 
-@pytest.mark.parametrize("script, flag", [("ipg_her_recipe", None), ("ipg_her", "--anneal-lr")])
-def test_anneal_lr_takes_the_learning_rates_linearly_to_zero(tmp_path, script, flag):
+@pytest.mark.parametrize("script", ["ipg_her_recipe", "ipg_her"])
+def test_anneal_lr_takes_the_learning_rates_linearly_to_zero(tmp_path, script):
     """--anneal-lr: at iteration i of N, lr = (1 - (i - 1) / N) lr_0 for the policy's Adam
-    (charts/learning_rate); the recipe's (Slide's default there) anneals the critic's too (its
-    state in resume.pt at the end), ipg_her.py's, as PPO's, the policy's alone."""
+    (charts/learning_rate); the recipe's anneals the critic's too (its state in resume.pt at the
+    end), ipg_her.py's, as PPO's, the policy's alone."""
     flags = "--total-timesteps 400 --critic-steps 2 --update-epochs 1 --hidden 16 --eval-freq 0"
-    flags += " --eval-episodes 1 --critic-learning-rate 2e-3 --resume-freq 400"
-    flags = [*flags.split(), *([flag] if flag else [])]
+    flags += " --eval-episodes 1 --critic-learning-rate 2e-3 --resume-freq 400 --anneal-lr"
+    flags = flags.split()
     run_dir, tags = smoke_run(f"{script}.py", tmp_path, "FetchSlide-v4", *flags)
     fracs = [1.0, 0.75, 0.5, 0.25]  # N = 400 / 100 = 4 iterations
     logged = [value for _, value in tags["charts/learning_rate"]]

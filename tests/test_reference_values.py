@@ -30,6 +30,12 @@ from conftest import ROOT, run_dirs, run_script, scalars
 REFERENCE = ROOT / "tests" / "reference_values.json"
 OTHER_CPUS = ROOT / "tests" / "reference_values_other_cpus.json"  # {name: [recording, ...]}
 TIMED = ("charts/SPS",)  # wall-clock figures: never the same twice
+RECORDED_ROWS = {  # flags: the same as the defaults then; grasped starts are the task's now
+    "FetchPush": ("--target-std", "1.0"),
+    "FetchPickAndPlace": ("--target-std", "1.0", "1.0", "1.0", "0.3"),
+    "FetchSlide": ("--target-std", "0.3", "0.3", "0.3", "1.0", "--action-l2", "0.0",
+                   "--bounds-loss", "1.0", "--anneal-lr"),
+}  # fmt: skip
 CONFIGS = {
     "ppo_kl_hopper": ("ppo_kl.py", "--env-id", "Hopper-v5", "--total-timesteps", "1536",
                       "--num-envs", "2", "--num-steps", "256", "--num-minibatches", "4",
@@ -48,12 +54,13 @@ CONFIGS = {
                       "--norm-reward", "--learning-starts", "256", "--critic-steps", "8",
                       "--eval-freq", "512", "--eval-episodes", "1", "--diagnostics-every", "1",
                       "--eval-workers", "0"),
-    # the hard-task recipe: each Fetch task with its own defaults, Hopper's nu = 1 regime
+    # the hard-task recipe: each Fetch task with the defaults it had when they were recorded
+    # (RECIPE and its row, before task_defaults computed them), Hopper's nu = 1 regime
     **{f"recipe_{task.lower()}": ("ipg_her_recipe.py", "--env-id", f"{task}-v4",
                                   "--total-timesteps", "600", "--critic-steps", "8",
                                   "--eval-freq", "200", "--eval-episodes", "2",
-                                  "--diagnostics-every", "1", "--eval-workers", "0")
-       for task in ("FetchPush", "FetchPickAndPlace", "FetchSlide")},
+                                  "--diagnostics-every", "1", "--eval-workers", "0", *row)
+       for task, row in RECORDED_ROWS.items()},
     "recipe_hopper_nu1": ("ipg_her_recipe.py", "--env-id", "Hopper-v5", "--total-timesteps", "1024",
                           "--num-envs", "1", "--num-steps", "256", "--critic-steps", "16",
                           "--update-epochs", "2", "--num-minibatches", "4", "--learning-rate",
