@@ -496,53 +496,44 @@ def test_sigma_rule_is_one_step_of_dual_ascent_on_the_target_entropy():
     )
 
 
+def sigma_rule_alone(act_dim: int, target_std, updates: int, start_std: float = 1.0):
+    """The sigma rule with no critic and no KL penalty: ``updates`` updates of nu = 1 on random
+    batches, each followed by the rule's step; each step's alpha and sigma per dimension."""
+    torch.manual_seed(0)
+    agent = ipg_her_recipe.Agent(3, act_dim, hidden=16, init_log_std=float(np.log(start_std)))
+    optimizer = torch.optim.Adam(agent.parameters(), lr=0.05)
+    args = ipg_her_recipe.Args(nu=1.0, target_std=target_std, num_minibatches=1, update_epochs=5)
+    alpha, alphas, sigmas = 0.0, [], []
+    for _ in range(updates):
+        b = random_batch(32, 3, act_dim, agent)
+        _, stats = ipg_her_recipe.ipg_update(agent, optimizer, b, 0.0, args, alpha=alpha)
+        log_std = agent.actor_logstd.detach().numpy()[0]
+        alpha = ipg_her_recipe.sigma_rule(
+            alpha, stats["charts/policy_entropy"], log_std, target_std
+        )
+        alphas.append(alpha)
+        sigmas.append(np.exp(log_std))
+    return alphas, np.array(sigmas)
+
+
 @pytest.mark.parametrize("start_std", [0.2, 5.0])
 def test_sigma_rule_grows_sigma_below_the_target_and_shrinks_it_above(start_std):
     """The rule alone (no critic, no KL penalty): from below the target sigma grows, from above it
     shrinks (alpha turns negative, which SAC's one-sided rule cannot), and it ends near target."""
-    torch.manual_seed(0)
-    agent = ipg_her_recipe.Agent(3, 2, hidden=16, init_log_std=float(np.log(start_std)))
-    optimizer = torch.optim.Adam(agent.parameters(), lr=0.05)
-    args = ipg_her_recipe.Args(nu=1.0, target_std=1.0, num_minibatches=1, update_epochs=5)
-    alpha, alphas = 0.0, []
-    for _ in range(60):
-        b = random_batch(32, 3, 2, agent)
-        _, stats = ipg_her_recipe.ipg_update(agent, optimizer, b, 0.0, args, alpha=alpha)
-        log_std = agent.actor_logstd.detach().numpy()[0]
-        alpha = ipg_her_recipe.sigma_rule(
-            alpha, stats["charts/policy_entropy"], log_std, args.target_std
-        )
-        alphas.append(alpha)
-    sigma = agent.actor_logstd.exp().mean().item()
+    alphas, sigmas = sigma_rule_alone(2, 1.0, 60, start_std)
+    sigma = sigmas[-1].mean()
     assert (alphas[0] > 0) == (start_std < 1.0)  # the first step's sign: towards the target
     assert (sigma > start_std) == (start_std < 1.0)
     assert 0.5 < sigma < 2.0, sigma
 
 
 def test_sigma_rule_per_dimension_moves_each_sigma_to_its_own_target():
-    """One target per action dimension (PickAndPlace's gripper): from sigma 1 the rule alone grows
-    the dimension aimed at 2 and shrinks the one aimed at 0.3, each steadily until it reaches its
-    target, and leaves the one aimed at 1; the summed rule moves all dimensions alike."""
+    """One target per action dimension: from sigma 1 the rule alone grows the dimension aimed at
+    2 and shrinks the one aimed at 0.3, each steadily until it reaches its target, and leaves the
+    one aimed at 1; the summed rule moves all dimensions alike."""
     targets = (1.0, 2.0, 0.3)
-    traces = []
-    for target_std in (targets, float(np.exp(np.log(targets).mean()))):  # the same total H
-        torch.manual_seed(0)
-        agent = ipg_her_recipe.Agent(3, 3, hidden=16)
-        optimizer = torch.optim.Adam(agent.parameters(), lr=0.05)
-        args = ipg_her_recipe.Args(
-            nu=1.0, target_std=target_std, num_minibatches=1, update_epochs=5
-        )
-        alpha, trace = 0.0, []
-        for _ in range(40):
-            b = random_batch(32, 3, 3, agent)
-            _, stats = ipg_her_recipe.ipg_update(agent, optimizer, b, 0.0, args, alpha=alpha)
-            log_std = agent.actor_logstd.detach().numpy()[0]
-            alpha = ipg_her_recipe.sigma_rule(
-                alpha, stats["charts/policy_entropy"], log_std, target_std
-            )
-            trace.append(np.exp(log_std))
-        traces.append(np.array(trace))
-    per_dim, summed = traces
+    per_dim = sigma_rule_alone(3, targets, 40)[1]
+    summed = sigma_rule_alone(3, float(np.exp(np.log(targets).mean())), 40)[1]  # the same H
     assert np.all(per_dim[:, 0] == 1.0)  # at its target from the start: alpha_0 stays 0
     for dim, reached in ((1, per_dim[:, 1] >= 2.0), (2, per_dim[:, 2] <= 0.3)):
         assert reached.any(), per_dim[:, dim]
