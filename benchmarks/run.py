@@ -381,12 +381,15 @@ def stop(signum, frame) -> None:
 
 def execute(command: list[str], run_dir: str) -> int | None:
     """Run one command with its output kept in ``run_dir``; write and return its exit code (None:
-    not started, the suite was stopped). While it runs, its pid is in ``run_dir/pid``."""
+    not started, the suite was stopped). While it runs, its pid is in ``run_dir/pid``. A run that
+    another runner finished since this one listed it is not started again: 0."""
     run_dir = Path(run_dir)
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     with LOCK:  # a stop comes either before (nothing starts) or after (it finds the child)
         if STOPPED:
             return None
+        if finished(run_dir):
+            return 0
         run_dir.mkdir(parents=True, exist_ok=True)
         # appended: an attempt that resumes keeps the output of the one it resumes
         with open(run_dir / "stdout.log", "a") as out, open(run_dir / "stderr.log", "a") as err:

@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 from conftest import ROOT, assert_clean_error
 
+from benchmarks import run
+
 CHILD = '''"""A script as run.py sees one: Ctrl-C or SIGTERM saves a resume point and exits
 128 + signal (the one named "stubborn" ignores both); with --resume it is done at once."""
 import os, signal, sys, time
@@ -201,3 +203,15 @@ def test_an_only_that_matches_no_run_is_an_error_with_a_hint(tmp_path):
     result = run_py("--out-dir", str(tmp_path), "--only", "xyzzy", "--dry-run")
     assert_clean_error(result, "--only xyzzy", "FetchReach-v4", "ppo_kl")
     assert not (tmp_path / "quick").exists()
+
+
+def test_a_run_another_runner_finished_meanwhile_is_not_started_again(tmp_path):
+    """Two runners on one suite: the first lists a run, the second finishes it, and when the
+    first comes to it, it is done: not started again over the finished run's folder."""
+    marker = tmp_path / "started"
+    command = [sys.executable, "-c", f"open({str(marker)!r}, 'w').close()"]
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "exit_code").write_text("0\n")
+    assert run.execute(command, str(tmp_path / "run")) == 0
+    assert not marker.exists() and (tmp_path / "run" / "exit_code").read_text() == "0\n"
+    assert run.execute(command, str(tmp_path / "other")) == 0 and marker.exists()
