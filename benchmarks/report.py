@@ -477,15 +477,18 @@ def load_peers(side_by_side: Path) -> dict:
     return peers
 
 
-def load_anchor_runs(folder: Path) -> dict:
+def load_anchor_runs(folder: Path, seeds: dict) -> dict:
     """{env_id: [Peer]}: an anchor run here seed by seed (Stable-Baselines3 with HER and
     rl-baselines3-zoo's settings), each run's ``summary.json`` in a folder of its own under
-    ``folder``: each seed's evaluations as its curve, its training seconds to each level (the wall
-    time at that evaluation less every evaluation's so far) and its steps per second of training."""
+    ``folder``, on the seeds the suite ran the task on (``seeds[env_id]``) only, so the anchor is
+    compared on the same seeds or not at all: each seed's evaluations as its curve, its training
+    seconds to each level (the wall time at that evaluation less every evaluation's so far) and
+    its steps per second of training."""
     found = defaultdict(list)
     for path in sorted(folder.glob("*/summary.json")):
         run = json.loads(path.read_text())
-        found[run["algo"], run["env"]].append(run)
+        if run["seed"] in seeds.get(run["env"], ()):
+            found[run["algo"], run["env"]].append(run)
     peers = defaultdict(list)
     for (algo, env_id), runs in sorted(found.items()):
         runs.sort(key=lambda r: r["seed"])
@@ -1002,7 +1005,12 @@ def main(args: Args) -> int:
         export.write_text(json.dumps(groups, separators=(",", ":")))
     rng = np.random.default_rng(args.seed)
     peers = load_peers(Path(args.side_by_side) if args.side_by_side else SIDE_BY_SIDE)
-    for env_id, anchors in load_anchor_runs(Path(args.anchor_runs or ANCHOR_RUNS)).items():
+    suite_seeds = defaultdict(set)  # the seeds this suite ran each task on
+    for group, runs in groups.items():
+        suite_seeds[group.split("__")[1]].update(int(seed) for seed in runs)
+    for env_id, anchors in load_anchor_runs(
+        Path(args.anchor_runs or ANCHOR_RUNS), suite_seeds
+    ).items():
         peers[env_id] += anchors
 
     if settings.figures == "paper":
