@@ -3,6 +3,7 @@ failing run."""
 
 import re
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from conftest import scalars
@@ -343,3 +344,48 @@ def test_benchmarks_and_tests_name_no_path_outside_the_repository():
              for i, line in enumerate(f.read_text().splitlines(), 1)
              if outside.search(line) and "re.compile" not in line]  # fmt: skip
     assert not found, found
+
+
+class FlagEnv(gym.Env):
+    """A goal task's success flag under the mazes' name, True on every other step."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def __init__(self, key: str = "success"):
+        self.key, self.t = key, 0
+
+    def reset(self, *, seed=None, options=None):
+        self.t = 0
+        return np.zeros(1, np.float32), {self.key: False}
+
+    def step(self, action):
+        self.t += 1
+        return np.zeros(1, np.float32), 0.0, False, self.t >= 4, {self.key: self.t % 2 == 1}
+
+
+def test_an_anchor_on_a_maze_reads_the_mazes_success_flag_at_every_step(tmp_path):
+    """benchmarks/anchor_success.py: the anchor script reads ``info["is_success"]``; on a maze it
+    is the maze's ``info["success"]`` at every step, a Fetch task's own flag is left alone, and
+    the anchor script run through it gets the wrapped ``gym.make``."""
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    from benchmarks import anchor_success
+
+    env = anchor_success.FetchSuccessKey(FlagEnv())
+    flags = [env.reset()[1]] + [env.step(np.zeros(1))[4] for _ in range(4)]
+    assert [info["is_success"] for info in flags] == [0.0, 1.0, 0.0, 1.0, 0.0]
+    assert [info["success"] for info in flags] == [False, True, False, True, False]
+    fetch = anchor_success.FetchSuccessKey(FlagEnv(key="is_success"))
+    assert [fetch.reset()[1]] + [fetch.step(np.zeros(1))[4] for _ in range(2)] == [
+        {"is_success": False}, {"is_success": True}, {"is_success": False}]  # fmt: skip
+
+    script = tmp_path / "anchor.py"
+    script.write_text("import sys, gymnasium as gym\n"
+                      "print(type(gym.make('CartPole-v1')).__name__, sys.argv[1:])\n")  # fmt: skip
+    cmd = [sys.executable, "benchmarks/anchor_success.py", str(script), "--seed", "1"]
+    out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "FetchSuccessKey ['--seed', '1']"
