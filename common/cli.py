@@ -9,7 +9,9 @@ import contextlib
 import dataclasses
 import io
 import math
+import os
 import re
+import signal
 import sys
 from collections.abc import Callable
 from typing import NoReturn, TypeVar
@@ -27,7 +29,21 @@ def interrupted(kind, error, traceback) -> None:
         sys.__excepthook__(kind, error, traceback)
 
 
+def interrupted_while_loading(signum, frame) -> NoReturn:
+    """SIGINT while a script's libraries load ends it at once, in one line with Ctrl-C's exit
+    code: raised there as a KeyboardInterrupt, it could surface from a compiled module's start-up
+    as an ImportError (mujoco's), or be swallowed by a library that tries an import and goes on.
+    Nothing has been written yet. ``parse_args`` hands Ctrl-C back to Python."""
+    os.write(2, f"{INTERRUPTED}\n".encode())
+    os._exit(130)
+
+
 sys.excepthook = interrupted  # before the slow imports below
+MAIN = getattr(sys.modules.get("__main__"), "__file__", None)  # the script run (none in a shell)
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+if (MAIN and os.path.abspath(MAIN).startswith(ROOT + os.sep)
+        and signal.getsignal(signal.SIGINT) is signal.default_int_handler):  # fmt: skip
+    signal.signal(signal.SIGINT, interrupted_while_loading)  # a script of ours, Ctrl-C not ignored
 
 import numpy as np  # noqa: E402
 import tyro  # noqa: E402
@@ -50,6 +66,8 @@ def parse_args(args_class: type[A], argv: list[str] | None = None, prog: str | N
     ``env_id -> {field: value}``: the task's own defaults, for the fields not given in ``argv``
     (in any spelling) nor ``ignored(args)`` (``{flag: why}``, the flags the run would ignore);
     one line says which were taken."""
+    if signal.getsignal(signal.SIGINT) is interrupted_while_loading:  # the libraries are loaded
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     captured, argv = io.StringIO(), sys.argv[1:] if argv is None else argv
     try:
         with contextlib.redirect_stderr(captured):

@@ -613,3 +613,21 @@ def test_ipg_on_a_task_without_goals_says_hindsight_is_off(capsys, script):
     recipe = ("defaults for FetchReach-v4: --hidden 256, --normalization paper, --action-l2 1.0, "
               "--twin-critic, --target-std 1.0 1.0 1.0 1.0, --gamma 0.98\n")  # fmt: skip
     assert capsys.readouterr().out == (recipe if script == "ipg_her_recipe" else "")
+
+
+def test_parsing_hands_ctrl_c_back_to_python_once_the_libraries_are_loaded():
+    """While a script's libraries load, Ctrl-C ends it at once (``interrupted_while_loading``);
+    from ``parse_args`` on it is a KeyboardInterrupt again, so an evaluation or a run unwinds (its
+    files closed, its workers ended) instead of vanishing."""
+    import signal
+
+    @dataclasses.dataclass
+    class Args:
+        env_id: str = "FetchReach-v4"
+
+    previous = signal.signal(signal.SIGINT, cli.interrupted_while_loading)
+    try:
+        cli.parse_args(Args, [])
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, previous)

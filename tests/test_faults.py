@@ -422,6 +422,35 @@ def test_ctrl_c_while_a_script_imports_is_one_line(tmp_path, script):
     assert not list(tmp_path.iterdir())
 
 
+SWALLOWED = """import builtins, os, runpy, signal, sys, time
+real_import = builtins.__import__
+def importing(name, *args, **kwargs):
+    if name == "torch" and "common.cli" in sys.modules and "torch" not in sys.modules:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C while torch loads...
+            time.sleep(1)
+        except BaseException:
+            pass  # ...caught by a library that tries an import and goes on
+    return real_import(name, *args, **kwargs)
+builtins.__import__ = importing
+sys.argv = {argv!r}
+runpy.run_path({script!r}, run_name="__main__")
+"""
+
+
+def test_ctrl_c_while_a_library_loads_ends_the_script_even_if_the_library_catches_it(tmp_path):
+    """A Ctrl-C while the libraries load ends the script there, in one line with Ctrl-C's exit
+    code and no run folder, even where a library would catch the KeyboardInterrupt (or turn it
+    into an ImportError, as mujoco's start-up does)."""
+    argv = ["ipg_her.py", "--log-dir", str(tmp_path), *TINY]
+    driver = SWALLOWED.format(argv=argv, script=str(ROOT / "ipg_her.py"))
+    result = subprocess.run([sys.executable, "-c", driver], cwd=ROOT, env=ENV,
+                            capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert result.returncode == 130, result.stderr
+    assert result.stderr == "interrupted; nothing was written\n", result.stderr
+    assert not list(tmp_path.iterdir())
+
+
 DRIVER = """import runpy, sys
 import torch
 def interrupted(*args, **kwargs):
