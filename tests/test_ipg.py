@@ -19,6 +19,7 @@ from conftest import (
     smoke_run,
 )
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from torch.distributions import Normal, kl_divergence
 from toy_envs import counting_envs
 
 import ipg_her
@@ -74,21 +75,48 @@ def test_nu_zero_without_cv_is_the_ppo_kl_update():
         torch.testing.assert_close(agent_ipg.state_dict()[key], value, rtol=0, atol=1e-7)
 
 
-def test_off_policy_term_moves_the_mean_up_the_critic():
+@pytest.mark.parametrize("module", [ipg_her, ipg_her_recipe], ids=lambda m: m.__name__)
+def test_off_policy_term_moves_the_mean_up_the_critic(module):
     """nu = 1: the update is deterministic policy gradient ascent on Q_w(s, mu(s)) (eq. 7, 10)."""
     torch.manual_seed(0)
-    agent = ipg_her.Agent(3, 2, 32)
+    agent = module.Agent(3, 2, 32)
     b = random_batch(64, 3, 2, agent)
-    qf = ipg_her.QNetwork(3, 2, 32)
+    qf = module.QNetwork(3, 2, 32)
     states = torch.randn(256, 3)
     with torch.no_grad():
         before = qf(states, agent.actor_mean(states)).mean()
-    args = ipg_her.Args(nu=1.0, num_minibatches=2, update_epochs=5, beta_init=0.0)
+    args = module.Args(nu=1.0, num_minibatches=2, update_epochs=5, beta_init=0.0)
     optimizer = torch.optim.Adam(agent.parameters(), lr=1e-3)
-    ipg_her.ipg_update(agent, optimizer, b, 0.0, args, qf, replay_of(states))
+    module.ipg_update(agent, optimizer, b, 0.0, args, qf, replay_of(states))
     with torch.no_grad():
         after = qf(states, agent.actor_mean(states)).mean()
     assert after > before + 1e-3
+
+
+@pytest.mark.parametrize("module", [ipg_her, ipg_her_recipe], ids=lambda m: m.__name__)
+def test_kl_penalty_pulls_the_policy_back_to_pi_old(module):
+    """Eq. 5's penalty beta KL[pi_old || pi], alone (nu = 1, no critic): one SGD step (lr 0.1, no
+    clipping) from a policy that has moved away from pi_old is -0.1 beta grad KL, and the KL
+    falls. At pi = pi_old its gradient is zero, so the policy is moved first."""
+    torch.manual_seed(0)
+    agent = module.Agent(5, 2, hidden=32)
+    b = random_batch(64, 5, 2, agent)  # pi_old: the policy now
+    with torch.no_grad():
+        agent.actor_mean[-1].bias.add_(0.5)
+        agent.actor_logstd.add_(0.3)
+    params = agent.actor_parameters()
+
+    def kl():
+        return kl_divergence(Normal(b["mean"], b["std"]), agent.dist(b["obs"])).sum(-1).mean()
+
+    grads = torch.autograd.grad(kl(), params, materialize_grads=True)
+    expected = -0.1 * 2.0 * torch.cat([g.flatten() for g in grads])  # beta = 2
+    before, kl_before = torch.cat([p.detach().flatten() for p in params]), kl().item()
+    args = module.Args(nu=1.0, num_minibatches=1, update_epochs=1, vf_coef=0.0, max_grad_norm=1e9)
+    module.ipg_update(agent, torch.optim.SGD(agent.parameters(), lr=0.1), b, 2.0, args)
+    after = torch.cat([p.detach().flatten() for p in params])
+    torch.testing.assert_close(after - before, expected)
+    assert kl().item() < kl_before
 
 
 @pytest.mark.parametrize("q_bar", ["mean", "sample"])
@@ -263,18 +291,19 @@ def test_nu_means_eq_10_nu_whatever_the_reward_scale(nu, use_cv):
     assert not torch.allclose(policy_after_one_update(10.0, nu, use_cv, "paper"), paper)
 
 
+@pytest.mark.parametrize("module", [ipg_her, ipg_her_recipe], ids=lambda m: m.__name__)
 @pytest.mark.parametrize("use_cv", [False, True])
 @pytest.mark.parametrize("nu", [0.2, 0.5, 0.8])
-def test_update_direction_is_a_positive_multiple_of_eq_10(nu, use_cv):
+def test_update_direction_is_a_positive_multiple_of_eq_10(nu, use_cv, module):
     """One plain SGD step (lr 1, one minibatch, no KL, no clipping) moves the policy by exactly
     (1/sigma) [(1 - nu) g_on + b g_off], g_on the likelihood-ratio gradient of the centred
     signal, g_off the gradient of -Q_w(s, mu(s)), b = nu (or 1 with the control variate)."""
     torch.manual_seed(0)
-    agent, qf = ipg_her.Agent(5, 2, hidden=32), ipg_her.QNetwork(5, 2, 32)
+    agent, qf = module.Agent(5, 2, hidden=32), module.QNetwork(5, 2, 32)
     b = random_batch(64, 5, 2, agent)
     b["advantages"] = 7.0 * b["advantages"]  # sigma far from 1
     if use_cv:
-        b["cv"] = ipg_her.control_variate(qf, agent, b["obs"], b["actions"])
+        b["cv"] = module.control_variate(qf, agent, b["obs"], b["actions"])
     raw = b["advantages"] - b["cv"] if use_cv else b["advantages"]
     sigma = raw.std()
 
@@ -287,11 +316,11 @@ def test_update_direction_is_a_positive_multiple_of_eq_10(nu, use_cv):
     g_off = grad(-qf(b["obs"], agent.actor_mean(b["obs"])).mean())
     expected = ((1 - nu) * g_on + (1.0 if use_cv else nu) * g_off) / sigma
 
-    args = ipg_her.Args(nu=nu, use_cv=use_cv, q_bar="mean", off_policy_states="batch",
-                        num_minibatches=1, update_epochs=1, vf_coef=0.0,
-                        max_grad_norm=1e9)  # fmt: skip
+    args = module.Args(nu=nu, use_cv=use_cv, q_bar="mean", off_policy_states="batch",
+                       num_minibatches=1, update_epochs=1, vf_coef=0.0,
+                       max_grad_norm=1e9)  # fmt: skip
     before = torch.cat([p.detach().flatten() for p in agent.actor_parameters()])
-    ipg_her.ipg_update(agent, torch.optim.SGD(agent.parameters(), lr=1.0), b, 0.0, args, qf)
+    module.ipg_update(agent, torch.optim.SGD(agent.parameters(), lr=1.0), b, 0.0, args, qf)
     after = torch.cat([p.detach().flatten() for p in agent.actor_parameters()])
     torch.testing.assert_close(before - after, expected, rtol=1e-4, atol=1e-6)
 
