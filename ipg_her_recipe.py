@@ -58,7 +58,7 @@ def task_defaults(env_id: str) -> dict:
     d, horizon = env.action_space.shape[0], env.spec.max_episode_steps
     env.close()
     own = dict(target_std=(round(min(1.0, 2 / d**0.5), 3),) * d)  # 0.447 on 20 joints
-    own |= dict(gamma=1 - 1 / horizon) if horizon else {}  # none: cli refuses the task
+    own |= dict(gamma=1 - 1 / horizon) if (horizon or 0) > 1 else {}  # H <= 1: --gamma default
     return RECIPE | own | (dict(grasped_start=0.5) if refusal(env_id) is None else {})
 
 

@@ -87,12 +87,18 @@ def state(model: dict) -> dict:
     return with_layers(parts, model) | {"normalizer_class": type(model["normalizer"]).__name__}
 
 
+BOUNDS = ("low", "high")  # a critic's copy of the action bounds: a Box's may be infinite
+
+
 def not_finite(value, name: str = "") -> list[str]:
-    """The names of the tensors and arrays in ``value`` (nested dicts) holding NaN or infinity."""
+    """The names of the tensors and arrays in ``value`` (nested dicts) holding NaN or infinity
+    (only NaN in ``BOUNDS``)."""
     if isinstance(value, dict):
         return [
             bad for key, v in value.items() for bad in not_finite(v, f"{name}.{key}".strip("."))
         ]
+    if torch.is_tensor(value) and value.is_floating_point() and name.split(".")[-1] in BOUNDS:
+        return [name] if value.isnan().any() else []
     if torch.is_tensor(value) and value.is_floating_point():
         return [] if torch.isfinite(value).all() else [name]
     if isinstance(value, np.ndarray | float) and np.issubdtype(
@@ -310,7 +316,11 @@ def load(path: str) -> dict:
     if "script" in content:  # a resume.pt: what a model.pt names, read from what it holds
         goals = "obs_rms" in content["normalizer"]
         content |= {"normalizer_class": "InputNormalizer" if goals else "RunningMeanStd",
-                    "last_eval_seeds": content["eval_seeds"]}  # fmt: skip
+                    "last_eval_seeds": content.get("eval_seeds")}  # fmt: skip
+    fields = {"args": dict, "last_eval_seeds": list, "normalizer_class": str}  # save()'s, state()'s
+    if bad := [name for name, kind in fields.items() if not isinstance(content.get(name), kind)]:
+        raise CheckpointError(f"{path} lacks a readable {', '.join(bad)}: it is not a whole "
+                              "model.pt or resume.pt of these scripts")  # fmt: skip
     return content
 
 

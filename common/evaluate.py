@@ -115,6 +115,14 @@ class Policy:
         if isinstance(self.normalizer, InputNormalizer):  # observation and desired goal
             keys = [k for k in ("observation", "desired_goal") if k in spaces]
             in_dim = sum(gym.spaces.flatdim(spaces[k]) for k in keys)
+        goals = tasks.goal_space(self.obs_space)
+        if isinstance(self.normalizer, InputNormalizer) and self.normalizer.goal_task != goals:
+            takes = "a goal Dict" if self.normalizer.goal_task else "a vector"
+            raise ValueError(
+                f"{env_id} does not match the policy trained on {self.args.get('env_id')}: the "
+                f"policy takes {takes} as its observation, {env_id} gives "
+                f"{'a goal Dict' if goals else 'a vector'}"
+            )
         saved = (self.actor_mean[0].in_features, self.log_std.shape[1])
         if (in_dim, action_space.shape[0]) != saved:
             raise ValueError(
@@ -192,7 +200,12 @@ def load_policy(path: str, env_id: str | None = None) -> Policy:
     tasks.register_goal_tasks()
     if why := tasks.task_refusal(env_id):
         raise ValueError(why)
-    return Policy(content, env_id)
+    try:
+        return Policy(content, env_id)
+    except KeyError as e:  # a part the file should hold and does not
+        raise checkpoint.CheckpointError(
+            f"{path} lacks {e}: it is not a whole model.pt or resume.pt of these scripts"
+        ) from e
 
 
 def main(argv: list[str] | None = None) -> int:

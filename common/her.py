@@ -89,13 +89,20 @@ def reward_refusal(env_id: str) -> str | None:
     target range call it on a batch of goals, ``(B, goal_dim)`` each, with ``info=None``."""
     env = gym.make(env_id).unwrapped
     goals = np.zeros((2, *env.observation_space["desired_goal"].shape))
+    need = (
+        "that takes a batch of goals and returns one reward each; relabelling and the critic's "
+        "target range use it (docs/your_goal_task.md)"
+    )
+    signature = "compute_reward(achieved_goal, desired_goal, info)"
+    if not callable(getattr(env, "compute_reward", None)):
+        return f"{env_id} has goals but no {signature} {need}"
     try:
-        ok = np.shape(env.compute_reward(goals, goals + 1.0, None)) == (2,)
-    except Exception:
-        ok = False
-    return None if ok else (f"{env_id} has goals but no compute_reward(achieved_goal, "
-        "desired_goal, info) that takes a batch of goals and returns one reward each; relabelling "
-        "and the critic's target range use it (docs/your_goal_task.md)")  # fmt: skip
+        shape = np.shape(env.compute_reward(goals, goals + 1.0, None))
+    except Exception as e:  # the task's own code: its message is the user's best clue
+        return f"{env_id}'s {signature} raised {type(e).__name__}: {e}; it must be one {need}"
+    if shape != (2,):
+        return f"{env_id}'s {signature} returned shape {shape} for 2 goals; it must be one {need}"
+    return None
 
 
 class HerReplayBuffer(ReplayBuffer):

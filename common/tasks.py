@@ -136,6 +136,9 @@ def _env_refusal(env: gym.Env, env_id: str, num_envs: int) -> str | None:
     if not isinstance(action_space, gym.spaces.Box):
         return (f"{env_id} has {type(action_space).__name__} actions; these scripts need "
                 "continuous (Box) actions, e.g. Hopper-v5, FetchReach-v4")  # fmt: skip
+    for what, shape in (("actions", action_space.shape), ("observations", observation_space.shape)):
+        if shape is not None and len(shape) != 1:  # the networks and the Gaussian take vectors
+            return f"{env_id}'s {what} have shape {shape}; these scripts need vectors (1-D Boxes)"
     if not (isinstance(observation_space, gym.spaces.Box) or goal_space(observation_space)):
         return (f"{env_id}'s observations are not supported: a vector (Box) or a goal Dict with "
                 f"vector {', '.join(GOAL_KEYS)} are")  # fmt: skip
