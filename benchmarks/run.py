@@ -5,10 +5,12 @@
     python benchmarks/report.py --suite paper         # figures and table from the event files
 
 Every run gets a folder ``{out-dir}/{suite}/{name}__{env_id}__seed{seed}/`` holding the script's
-own run folder (TensorBoard events), ``stdout.log``, ``stderr.log``, ``exit_code`` and while it
-runs ``pid`` (a later call starts no second copy of a run still running). A run whose
-``exit_code`` says 0 is skipped by the next call (resume); a failed one is run again, and one
-stopped goes on from its resume point if it has one. The call exits non-zero if any run failed.
+own run folder (TensorBoard events), ``stdout.log``, ``stderr.log``, ``exit_code``, ``run.lock``
+(held by the runner from before the run starts until its exit code is written: a second runner on
+the suite starts no run the first holds) and while it runs ``pid`` (a later call starts no second
+copy of a run still running). A run whose ``exit_code`` says 0 is skipped by the next call
+(resume); a failed one is run again, and one stopped goes on from its resume point if it has one.
+The call exits non-zero if any run failed or was left to another runner.
 Ctrl-C (or SIGTERM) stops the suite: the running scripts save and exit, no other run starts.
 
 The suites (``SUITES``: each its seeds, how report.py shows it, and one row per variant x task, on
@@ -41,6 +43,7 @@ the suite's seeds or its own; ``--seeds`` replaces them):
 
 import ctypes
 import difflib
+import fcntl
 import importlib
 import os
 import shlex
@@ -381,28 +384,40 @@ def stop(signum, frame) -> None:
 
 def execute(command: list[str], run_dir: str) -> int | None:
     """Run one command with its output kept in ``run_dir``; write and return its exit code (None:
-    not started, the suite was stopped). While it runs, its pid is in ``run_dir/pid``. A run that
-    another runner finished since this one listed it is not started again: 0."""
+    not started, the suite was stopped or another runner holds the run). While it runs, its pid is
+    in ``run_dir/pid``. The runner holds ``run_dir/run.lock`` from before the run starts until its
+    exit code is written, so that two runners on one suite never run it at once; a run another
+    runner finished since this one listed it is not started again: 0."""
     run_dir = Path(run_dir)
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    with LOCK:  # a stop comes either before (nothing starts) or after (it finds the child)
-        if STOPPED:
+    with LOCK:
+        if STOPPED:  # a queued run gets no folder
+            return None
+        run_dir.mkdir(parents=True, exist_ok=True)
+    with open(run_dir / "run.lock", "a") as run_lock:  # the kernel frees it if the runner dies
+        try:
+            fcntl.flock(run_lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:  # another runner runs it
+            return None
+        if running(run_dir):  # a killed runner's run, still saving
             return None
         if finished(run_dir):
             return 0
-        run_dir.mkdir(parents=True, exist_ok=True)
-        # appended: an attempt that resumes keeps the output of the one it resumes
-        with open(run_dir / "stdout.log", "a") as out, open(run_dir / "stderr.log", "a") as err:
-            proc = subprocess.Popen(command, cwd=ROOT, env=env, stdout=out, stderr=err,
-                                    start_new_session=True,
-                                    preexec_fn=die_with_runner if LIBC else None)  # fmt: skip
-        RUNNING.add(proc)
-        (run_dir / "pid").write_text(f"{proc.pid}\n")
-    code = proc.wait()
-    with LOCK:
-        RUNNING.discard(proc)
-    (run_dir / "exit_code").write_text(f"{code}\n")
-    (run_dir / "pid").unlink()
+        with LOCK:  # a stop comes either before (nothing starts) or after (it finds the child)
+            if STOPPED:
+                return None
+            # appended: an attempt that resumes keeps the output of the one it resumes
+            with open(run_dir / "stdout.log", "a") as out, open(run_dir / "stderr.log", "a") as err:
+                proc = subprocess.Popen(command, cwd=ROOT, env=env, stdout=out, stderr=err,
+                                        start_new_session=True,
+                                        preexec_fn=die_with_runner if LIBC else None)  # fmt: skip
+            RUNNING.add(proc)
+            (run_dir / "pid").write_text(f"{proc.pid}\n")
+        code = proc.wait()
+        with LOCK:
+            RUNNING.discard(proc)
+        (run_dir / "exit_code").write_text(f"{code}\n")
+        (run_dir / "pid").unlink()
     return code
 
 
@@ -453,9 +468,10 @@ def main(args: Args) -> int:
     todo = [r for r in runs if not finished(suite_dir / r.folder)]
     skipped = len(runs) - len(todo)
     alive = {r: pid for r in todo if (pid := running(suite_dir / r.folder))}
-    for r, pid in alive.items():  # a killed runner's run, still stopping: no second copy
+    for r, pid in alive.items():  # another runner's run, or a killed one's: no second copy
         print(f"{r.folder}: still running as pid {pid}; not started again", flush=True)
     todo = [r for r in todo if r not in alive]
+    held = []  # the runs another runner took since they were listed
     if args.dry_run:
         try:
             for r in todo:
@@ -475,9 +491,13 @@ def main(args: Args) -> int:
             if code is not None:
                 stopped.append(run.folder)
             return
+        if code is None:  # not started: another runner holds it
+            print(f"{run.folder}: run by another runner; not started again", flush=True)
+            held.append(run)
+            return
         done += 1
         elapsed = time.time() - start
-        eta = elapsed / done * (len(todo) - done)
+        eta = elapsed / done * (len(todo) - done - len(held))
         status = (
             "ok"
             if code == 0
@@ -525,10 +545,11 @@ def main(args: Args) -> int:
               f"command again: python {shlex.join(sys.argv)}", flush=True)  # fmt: skip
         return 128 + STOPPED[0]
     print(f"summary: {done - len(failed)} done, {len(failed)} failed, {skipped} skipped, "
-          f"{len(alive)} still running, wall time {fmt(time.time() - start)}")  # fmt: skip
+          f"{len(alive) + len(held)} still running elsewhere, "
+          f"wall time {fmt(time.time() - start)}")  # fmt: skip
     for name in failed:
         print(f"failed: {name}")
-    return 1 if failed or alive else 0
+    return 1 if failed or alive or held else 0
 
 
 def cli() -> int:

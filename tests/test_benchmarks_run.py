@@ -1,7 +1,9 @@
 """benchmarks/run.py: Ctrl-C or SIGTERM stops the suite (the running scripts save, nothing queued
-starts, the same command resumes), kill -9 takes the running scripts with it, and bad input (a
-folder it cannot write in, an --only that matches no run) is one error line before any run."""
+starts, the same command resumes), kill -9 takes the running scripts with it, two runners on one
+suite run each run once, and bad input (a folder it cannot write in, an --only that matches no
+run) is one error line before any run."""
 
+import fcntl
 import os
 import signal
 import subprocess
@@ -215,3 +217,37 @@ def test_a_run_another_runner_finished_meanwhile_is_not_started_again(tmp_path):
     assert run.execute(command, str(tmp_path / "run")) == 0
     assert not marker.exists() and (tmp_path / "run" / "exit_code").read_text() == "0\n"
     assert run.execute(command, str(tmp_path / "other")) == 0 and marker.exists()
+
+
+def test_two_runners_on_one_suite_run_each_run_once(tmp_path):
+    """A second runner started while the first's run is running: each run starts once, in one
+    runner or the other (a run the other runner holds is left to it and named), both end without
+    a traceback, and every run's exit code is 0."""
+    first = runner(tmp_path, "--workers", "1", FAKE_SLEEP="3")
+    second = None
+    try:
+        wait_for(lambda: (folder(tmp_path, "clean") / "starts").exists())
+        second = runner(tmp_path, "--workers", "1", FAKE_SLEEP="3")
+        results = [proc.communicate(timeout=60) for proc in (first, second)]
+    finally:
+        for proc in (first, second or first):
+            end(proc, tmp_path)
+    for out, err in results:
+        assert "Traceback" not in err, err
+    names = ("clean", "stubborn", "queued1", "queued2")
+    assert all(len((folder(tmp_path, n) / "starts").read_text().split()) == 1 for n in names)
+    assert all((folder(tmp_path, n) / "exit_code").read_text() == "0\n" for n in names)
+    assert "not started again" in results[0][0] + results[1][0]
+
+
+def test_a_run_another_runner_holds_is_not_started(tmp_path):
+    """While another runner holds a run's lock, execute starts nothing there and writes no exit
+    code: it returns None (not started)."""
+    marker = tmp_path / "started"
+    command = [sys.executable, "-c", f"open({str(marker)!r}, 'w').close()"]
+    (tmp_path / "run").mkdir()
+    with open(tmp_path / "run" / "run.lock", "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)  # as the other runner holds it
+        assert run.execute(command, str(tmp_path / "run")) is None
+    assert not marker.exists() and not (tmp_path / "run" / "exit_code").exists()
+    assert run.execute(command, str(tmp_path / "run")) == 0 and marker.exists()
