@@ -458,6 +458,8 @@ def main(args: Args) -> int:
         hint = f"did you mean {' or '.join(close)}?" if close else f"try one of {', '.join(names)}"
         return refuse(f"--only {args.only}: no run of the {args.suite} suite has it in its "
                       f"folder name ({{name}}__{{env_id}}__seed{{seed}}); {hint}")  # fmt: skip
+    if args.workers < 1:
+        return refuse(f"--workers {args.workers}: the runs at once must be at least 1")
     if not args.dry_run:  # a folder the runs cannot write in fails here, not in each worker
         try:
             suite_dir.mkdir(parents=True, exist_ok=True)
@@ -530,7 +532,7 @@ def main(args: Args) -> int:
                 report(pending.pop(ref), ray.get(ref))
         ray.shutdown()
     else:
-        with ThreadPoolExecutor(max_workers=max(args.workers, 1)) as pool:
+        with ThreadPoolExecutor(max_workers=args.workers) as pool:
             futures = {
                 pool.submit(execute, r.command(suite_dir / r.folder), str(suite_dir / r.folder)): r
                 for r in todo

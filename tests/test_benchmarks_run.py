@@ -1,7 +1,7 @@
 """benchmarks/run.py: Ctrl-C or SIGTERM stops the suite (the running scripts save, nothing queued
 starts, the same command resumes), kill -9 takes the running scripts with it, two runners on one
 suite run each run once, and bad input (a folder it cannot write in, an --only that matches no
-run) is one error line before any run."""
+run, --workers below 1) is one error line before any run."""
 
 import fcntl
 import os
@@ -251,3 +251,11 @@ def test_a_run_another_runner_holds_is_not_started(tmp_path):
         assert run.execute(command, str(tmp_path / "run")) is None
     assert not marker.exists() and not (tmp_path / "run" / "exit_code").exists()
     assert run.execute(command, str(tmp_path / "run")) == 0 and marker.exists()
+
+
+@pytest.mark.parametrize("workers", ["-1", "0"])
+def test_workers_below_one_is_one_error_line(tmp_path, workers):
+    """--workers -1 ran one worker under a header saying -1: refused, nothing written."""
+    result = run_py("--out-dir", str(tmp_path), "--workers", workers)
+    assert_clean_error(result, f"--workers {workers}", "at least 1")
+    assert "to run" not in result.stdout and not (tmp_path / "quick").exists()
