@@ -61,6 +61,7 @@ from typing import Literal, NamedTuple
 import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
+RAY = "ray==2.60.0"  # requirements-test.txt's pin, the Ray the ray backend is tested with
 
 
 @dataclass
@@ -460,6 +461,11 @@ def main(args: Args) -> int:
                       f"folder name ({{name}}__{{env_id}}__seed{{seed}}); {hint}")  # fmt: skip
     if args.workers < 1:
         return refuse(f"--workers {args.workers}: the runs at once must be at least 1")
+    if args.backend == "ray":
+        try:
+            import ray
+        except ImportError:
+            return refuse(f"--backend ray needs Ray: pip install {RAY}")
     if not args.dry_run:  # a folder the runs cannot write in fails here, not in each worker
         try:
             suite_dir.mkdir(parents=True, exist_ok=True)
@@ -513,10 +519,6 @@ def main(args: Args) -> int:
             failed.append(run.folder)
 
     if args.backend == "ray":
-        try:
-            import ray
-        except ImportError:
-            return refuse("--backend ray needs Ray: pip install 'ray[default]'")
         # workers import this module from the project folder (the same path on every node)
         ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False,
                  runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}})  # fmt: skip

@@ -1,7 +1,7 @@
 """benchmarks/run.py: Ctrl-C or SIGTERM stops the suite (the running scripts save, nothing queued
 starts, the same command resumes), kill -9 takes the running scripts with it, two runners on one
 suite run each run once, and bad input (a folder it cannot write in, an --only that matches no
-run, --workers below 1) is one error line before any run."""
+run, --workers below 1, --backend ray without Ray) is one error line before any run."""
 
 import fcntl
 import os
@@ -165,9 +165,10 @@ def test_kill_9_takes_the_runs_with_it_and_a_rerun_leaves_a_live_one_alone(tmp_p
         end(proc, tmp_path)
 
 
-def run_py(*flags: str) -> subprocess.CompletedProcess:
+def run_py(*flags: str, **env: str) -> subprocess.CompletedProcess:
     cmd = [sys.executable, "benchmarks/run.py", "--suite", "quick", *flags]
-    return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    env = {**os.environ, **env}
+    return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=120)
 
 
 @pytest.fixture
@@ -259,3 +260,18 @@ def test_workers_below_one_is_one_error_line(tmp_path, workers):
     result = run_py("--out-dir", str(tmp_path), "--workers", workers)
     assert_clean_error(result, f"--workers {workers}", "at least 1")
     assert "to run" not in result.stdout and not (tmp_path / "quick").exists()
+
+
+def test_backend_ray_without_ray_is_one_error_line(tmp_path):
+    """--backend ray where Ray does not import (a fake ray on PYTHONPATH raises ImportError): one
+    line naming the install of requirements-test.txt's pinned Ray, and no suite folder."""
+    fake = tmp_path / "fake"
+    fake.mkdir()
+    (fake / "ray.py").write_text("raise ImportError('no Ray here')\n")
+    pins = (ROOT / "requirements-test.txt").read_text().split()
+    pin = next(word for word in pins if word.startswith("ray=="))
+    out_dir = tmp_path / "runs"
+    result = run_py("--out-dir", str(out_dir), "--backend", "ray", PYTHONPATH=str(fake))
+    assert not out_dir.exists(), "a suite folder was written before Ray was found missing"
+    assert_clean_error(result, "--backend ray", f"pip install {pin}")
+    assert "to run" not in result.stdout
