@@ -5,6 +5,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import gymnasium as gym
 import numpy as np
@@ -14,6 +15,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[2]  # the project root: the probes run from there
 sys.path.insert(0, str(ROOT))
 import ipg_her_recipe  # noqa: E402  (slide_strikes reads the recipe's runs and critic)
+import ppo_kl  # noqa: E402  (update_speed times its update)
 from benchmarks.probes import (  # noqa: E402
     fetch_lifts,
     maze_paths,
@@ -25,10 +27,24 @@ from benchmarks.probes import (  # noqa: E402
 )
 
 
-def test_update_speed_times_the_full_eager_update():
-    timing = update_speed.time_updates("eager", update_speed.Args(repeats=1))
-    assert timing["minibatch_steps"] == 320  # 10 epochs x 32 minibatches, ppo_kl.py's defaults
-    assert 0 < timing["min_s"] <= timing["median_s"]
+def test_update_speed_times_each_full_update_and_leaves_the_first_out(monkeypatch):
+    """Each timed call is one whole ppo_kl.py update, 320 Adam steps (10 epochs x 32
+    minibatches, its defaults), counted on the optimiser; on a clock that ticks 2, 5 and 3 s for
+    the three calls, the first (which compiles) is reported apart, and min and median are those
+    of the other two (the upper one for the median of two)."""
+    ticks = iter([0, 2, 2, 7, 7, 10])  # start and end of each call
+    monkeypatch.setattr(update_speed, "time", SimpleNamespace(perf_counter=lambda: next(ticks)))
+    update, adam_steps = ppo_kl.ppo_kl_update, []
+
+    def counted(agent, optimizer, *rest):
+        update(agent, optimizer, *rest)
+        adam_steps.append(int(optimizer.state[agent.actor_logstd]["step"]))
+
+    monkeypatch.setattr(ppo_kl, "ppo_kl_update", counted)
+    timing = update_speed.time_updates("eager", update_speed.Args(repeats=2))
+    assert adam_steps == [320, 640, 960]
+    assert timing == {"mode": "eager", "first_s": 2, "min_s": 3, "median_s": 5,
+                      "minibatch_steps": 320}  # fmt: skip
 
 
 def test_the_profile_gives_each_sample_to_its_phase():
@@ -70,7 +86,7 @@ def test_the_profile_of_a_tiny_run_names_its_phases(tmp_path):
     lines = [json.loads(line) for line in out.stdout.splitlines()]
     phases = {line["phase"]: line for line in lines}
     assert {"stepping", "policy update", "all samples"} <= set(phases)
-    assert abs(sum(line["share"] for line in lines[:-1]) - 1) < 0.01
+    assert 0 < phases["all samples"]["seconds"] <= phases["all samples"]["wall_s"]  # at its rate
 
 
 def test_fetch_lifts_counts_a_held_lift_not_a_knock_in_time_order():
