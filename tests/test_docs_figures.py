@@ -1,0 +1,473 @@
+"""The figures the docs quote are the committed exports' (``benchmarks/results/<suite>/``): every
+number of the README's results table, and every row of the headline tables of docs/results.md and
+docs/investigations/one_recipe.md, is recomputed here from the export it comes from, by
+``benchmarks/report.py``'s own functions (its medians, its bootstrap intervals with their seeds),
+and a figure that drifts from it fails, naming its row. Each export's ``results.md`` is checked
+against its ``curves.json`` the same way, so that the tables a reader opens there agree too."""
+
+import functools
+import json
+import re
+import statistics
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from benchmarks import report  # noqa: E402
+
+RESULTS = ROOT / "benchmarks" / "results"
+SUITES = sorted(path.parent.name for path in RESULTS.glob("*/curves.json"))
+
+
+@functools.cache
+def curves(suite: str) -> dict:
+    """The export's runs; read once (nothing here changes them)."""
+    return json.loads((RESULTS / suite / "curves.json").read_text())
+
+
+@functools.cache
+def task_tables(suite: str, seeds: tuple[int, ...] = ()) -> str:
+    """report.py's per-task tables of ``suite``, its anchors beside them, as its main() computes
+    them; with ``seeds``, from those seeds' runs only."""
+    groups = curves(suite)
+    if seeds:
+        groups = {
+            g: {s: r for s, r in runs.items() if int(s) in seeds} for g, runs in groups.items()
+        }
+        groups = {g: runs for g, runs in groups.items() if runs}
+    peers = report.load_peers(report.SIDE_BY_SIDE)
+    ran = defaultdict(set)
+    for group, runs in groups.items():
+        ran[group.split("__")[1]].update(int(seed) for seed in runs)
+    for env_id, anchors in report.load_anchor_runs(report.ANCHOR_RUNS, ran).items():
+        peers[env_id] += anchors
+    return report.task_tables(groups, peers, report.Args.seed)
+
+
+def split_row(line: str) -> list[str]:
+    return [cell.strip() for cell in line.strip().strip("|").split(" | ")]
+
+
+def export_rows(suite: str, seeds: tuple[int, ...] = ()) -> dict[tuple[str, str], dict]:
+    """{(task, row label): {column: cell}} of ``task_tables``; a column header without its
+    suffix ("first eval >= 0.5: median steps (seeds there)" is "first eval >= 0.5")."""
+    rows, task, header = {}, None, None
+    for line in task_tables(suite, seeds).splitlines():
+        if line.startswith("**"):
+            task, header = line.split("**")[1], None
+        elif line.startswith("| algorithm"):
+            header = [h.split(":")[0] if h.startswith("first") else h for h in split_row(line)]
+        elif line.startswith("| ") and header:
+            cells = dict(zip(header, split_row(line), strict=True))
+            rows[task, cells["algorithm"]] = cells
+    return rows
+
+
+def export_cell(suite: str, task: str, label: str, column: str, seeds: str = "") -> str:
+    """A cell of ``suite``'s row ``label`` on ``task``; with ``seeds`` ("21-25"), that row on
+    those seeds, recomputed from them alone where the export pools more."""
+    row = export_rows(suite)[task, label]
+    if seeds and seeds_of(row) != seeds:
+        wanted = {int(s) for part in seeds.split(", ") for s in seed_span(part)}
+        row = export_rows(suite, tuple(sorted(wanted)))[task, label]
+    assert not seeds or seeds_of(row) == seeds, (suite, task, label, row["seeds"], seeds)
+    return row[column]
+
+
+def seed_span(part: str) -> range:
+    first, _, last = part.partition("-")
+    return range(int(first), int(last or first) + 1)
+
+
+def seeds_of(row: dict) -> str:
+    """A row's seeds: "3 (401-403)" -> "401-403"; an anchor's "1" -> "1"."""
+    match = re.fullmatch(r"\d+ \((.*)\)", row["seeds"])
+    return match[1] if match else row["seeds"]
+
+
+FINAL = "final eval: median [95% CI]"
+
+
+def final_eval(suite: str, task: str, label: str, seeds: str = "") -> str:
+    return export_cell(suite, task, label, FINAL, seeds)
+
+
+def median(cell: str) -> str:
+    """The median of a final-eval cell: "0.68 [0.66, 0.70]" -> "0.68"."""
+    return cell.split(" [")[0]
+
+
+def first_eval(suite: str, task: str, label: str, level: float, seeds: str = "") -> str:
+    return export_cell(suite, task, label, f"first eval >= {level:g}", seeds)
+
+
+def kilo(cell: str) -> str:
+    """The README's steps: "170,000 (3/3)" -> "170k"; a level not reached is no figure."""
+    assert not cell.startswith("not reached"), cell
+    return f"{int(cell.split()[0].replace(',', '')) // 1000}k"
+
+
+def no_seed(cell: str) -> str:
+    assert cell.startswith("not reached (0/"), cell
+    return "by no seed"
+
+
+# ---------------------------------------------------------------------------------------------
+# each export's results.md against its curves.json
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # the std of a one-seed row: nan, as printed
+@pytest.mark.parametrize("suite", SUITES)
+def test_each_results_md_holds_the_tables_its_curves_json_gives(suite):
+    """The per-task tables and the training table of ``results.md`` are what report.py computes
+    from the same folder's ``curves.json``: a hand-edited or stale results.md fails."""
+    committed = (RESULTS / suite / "results.md").read_text()
+    groups = curves(suite)
+    computed = task_tables(suite) + "\n" + report.table(groups, report.Args.window)
+    missing = [
+        line for line in computed.splitlines() if line.startswith("|") and line not in committed
+    ]
+    assert not missing, f"benchmarks/results/{suite}/results.md lacks: {missing[:3]}"
+
+
+# ---------------------------------------------------------------------------------------------
+# the README's results table
+
+
+def side_by_side() -> tuple[float, float]:
+    """The medians of the training seconds to 0.9 in the against_sb3 export: ours, SB3's."""
+    data = json.loads(report.SIDE_BY_SIDE.read_text())
+    return tuple(
+        statistics.median(r["train_s_to_0.9"] for r in data[key])
+        for key in ("ipg_her", "sb3_ddpg_her")
+    )
+
+
+def every_seed_at(suite: str, group: str, level: float) -> str:
+    """The step by which every seed had evaluated at ``level`` or more (report.first_eval_at)."""
+    steps = [report.first_eval_at(run, level)[0] for run in curves(suite)[group].values()]
+    assert np.isfinite(steps).all(), (suite, group, steps)
+    return f"{max(steps):,.0f}"
+
+
+def highest_eval(suite: str, *groups: str) -> str:
+    values = [
+        v for g in groups for run in curves(suite)[g].values() for _, v in run["eval/success_rate"]
+    ]
+    return f"{max(values):.2f}"
+
+
+def training_return(suite: str, label: str) -> str:
+    """The first table's "final (mean ± sample std)" on Hopper, "2220 ± 347" as "2,220 ± 347"."""
+    lines = report.table(curves(suite), report.Args.window).splitlines()
+    cells = next(split_row(line) for line in lines if line.startswith(f"| Hopper-v5 | {label} |"))
+    mean, std = cells[3].split(" ± ")
+    return f"{int(mean):,} ± {int(std):,}"
+
+
+def readme_rows() -> dict[str, list[str]]:
+    """For each row of the README's results table, by its question: the phrases it must hold,
+    each built from the export it names, and the words with digits that are no figure (seeds,
+    budgets, flags, names)."""
+    ours, sb3 = side_by_side()
+    reach_side = first_eval("paper", "FetchReach-v4", "IPG+HER side by side (3,000 steps)", 0.9)
+    sb3_reach = first_eval("paper", "FetchReach-v4", "SB3 DDPG+HER (anchor; 3,000 steps)", 0.9)
+    assert reach_side == sb3_reach  # the row says "as SB3's DDPG+HER"
+    push, pick = "FetchPush-v4", "FetchPickAndPlace-v4"
+    slide, reach, maze = "FetchSlide-v4", "HandReach-v3", "PointMaze_Medium-v3"
+    block, sac = "HandManipulateBlockRotateZ-v1", "SB3 SAC+HER (anchor; zoo settings)"
+    slide_flags = "--target-std 0.3 0.3 0.3 1 --action-l2 0 --bounds-loss 1 --anneal-lr"
+    her, no_her = (every_seed_at("paper", f"{g}__FetchReach-v4", 1.0) for g in ("ipg_her", "ipg"))
+    return {
+        "Does the main job learn FetchReach, and how fast? (seeds 21-25)": [
+            f"success 0.9 after a median {reach_side.split()[0]} steps, as SB3's DDPG+HER",
+            f"{sb3 / ours:.1f} times less training time, side by side (medians of {ours:.2f} s "
+            f"against {sb3:.2f} s",
+            "21-25",
+        ],
+        "IPG + HER > Q-Prop > PPO-KL on FetchReach? (seeds 1-5, which chose `ipg_her.py`'s "
+        "defaults; 30k steps)": [
+            f"IPG + HER 1.00 by {her} steps in every seed, IPG without HER by {no_her}",
+            "PPO-KL and Q-Prop no evaluation above "
+            + highest_eval("paper", "ppo_kl__FetchReach-v4", "qprop_ppo__FetchReach-v4"),
+            "1-5",
+            "30k",
+        ],
+        "Q-Prop > PPO-KL on Hopper? (seeds 101-108, 1M steps)": [
+            f"final training return {training_return('paper_fresh', 'Q-Prop')} against PPO-KL's "
+            f"{training_return('paper_fresh', 'PPO-KL')}, mean ± std over seeds",
+            "101-108",
+            "1M",
+        ],
+        "Does an interpolated gradient (0 < nu < 1) beat both ends?": ["0 < nu < 1"],
+        "FetchPush, `ipg_her_recipe.py`'s defaults, 300k (seeds 401-403)": [
+            f"last evaluation {final_eval('one_recipe', push, 'ipg_her_300k', '401-403')}, 0.9 by "
+            f"a median {kilo(first_eval('one_recipe', push, 'ipg_her_300k', 0.9))} steps",
+            "with one summed sigma rule (`--target-std 1.0`, seeds 201-205) "
+            f"{final_eval('fetch_fresh', push, 'ipg_her_300k', '201-205')}, "
+            f"{kilo(first_eval('fetch_fresh', push, 'ipg_her_300k', 0.9))}",
+            "300k",
+            "401-403",
+        ],
+        "FetchPickAndPlace, 500k (seeds 401-403)": [
+            f"last evaluation {final_eval('one_recipe', pick, 'ipg_her_500k', '401-403')}, 0.9 "
+            + no_seed(first_eval("one_recipe", pick, "ipg_her_500k", 0.9)),
+            "with `--target-std 1.0 1.0 1.0 0.3` (seeds 201-203) "
+            f"{final_eval('fetch_fresh', pick, 'ipg_her_500k', '201-203')}, 0.9 by a median "
+            f"{kilo(first_eval('fetch_fresh', pick, 'ipg_her_500k', 0.9))}",
+            "500k",
+            "401-403",
+        ],
+        "FetchSlide, 1M (seeds 401-403)": [
+            f"last evaluation {final_eval('one_recipe', slide, 'ipg_her_1000k', '401-403')}",
+            f"with `{slide_flags}` (seeds 7-9) {final_eval('fetch', slide, 'ipg_her_1000k', '7-9')}"
+            f", 0.7 by a median {kilo(first_eval('fetch', slide, 'ipg_her_1000k', 0.7))}",
+            "1M",
+            "401-403",
+        ],
+        "HandReach, PointMaze_Medium, BlockRotateZ, the defaults (seeds 401-403)": [
+            f"HandReach {final_eval('one_recipe', reach, 'ipg_her_300k', '401-403')} at 300k "
+            f"(SB3 SAC+HER {median(final_eval('one_recipe', reach, sac, '401-403'))} on the same "
+            "seeds)",
+            f"PointMaze_Medium {final_eval('one_recipe', maze, 'ipg_her_300k', '401-403')} "
+            "(SAC+HER with FetchReach's settings "
+            f"{median(final_eval('one_recipe', maze, sac, '401-403'))})",
+            f"BlockRotateZ {final_eval('one_recipe', block, 'ipg_her_1000k', '401-403')} at 1M",
+            "401-403",
+            "seed 11",
+        ],
+        "The same three with one summed sigma rule at 1 and gamma 0.98 (seeds 301-303)": [
+            f"HandReach {median(final_eval('goals', reach, 'ipg_her_300k', '301-303'))} at 300k "
+            f"against SB3 SAC+HER's {median(final_eval('goals', reach, sac, '301-303'))}, "
+            f"PointMaze_Medium {median(final_eval('goals', maze, 'ipg_her_300k', '301-303'))}, "
+            f"BlockRotateZ {median(final_eval('goals', block, 'ipg_her_1000k', '301-303'))} at 1M",
+            "at 1 and gamma 0.98",
+            "301-303",
+        ],
+    }
+
+
+def readme_table() -> list[list[str]]:
+    text = (ROOT / "README.md").read_text().split("## Results", 1)[1].split("\n## ", 1)[0]
+    return [split_row(line) for line in text.splitlines() if line.startswith("| ")][2:]
+
+
+def test_every_number_of_the_readmes_results_table_is_its_exports():
+    """Each row holds its phrases, every figure in them recomputed from its export; once they and
+    the row's seeds, budgets and names are taken out, no digit is left: no figure goes unchecked.
+    A row added or reworded must be given its phrases here. Every row is checked, then all that
+    drifted are named at once."""
+    expected, rows = readme_rows(), dict(readme_table())
+    drifted = [f"a row no phrase checks: {q!r}" for q in rows if q not in expected]
+    for question, phrases in expected.items():
+        if question not in rows:
+            drifted.append(f"no row {question!r}")
+            continue
+        text = re.sub(r"\]\([^)]*\)", "]", f"{question} | {rows[question]}")  # links: no figures
+        for phrase in phrases:
+            if phrase not in text:
+                drifted.append(f"row {question!r}: the export gives {phrase!r}")
+            text = text.replace(phrase, "", 1)
+        if re.search(r"\d", text.replace("SB3", "")):
+            drifted.append(f"row {question!r}: a figure no export checks, in {text!r}")
+    assert not drifted, "README's results table:\n" + "\n".join(drifted)
+
+
+# ---------------------------------------------------------------------------------------------
+# the headline rows of the results pages
+
+# (task, seeds, the row's label on the page) -> (suite, the export's row label)
+SOURCES = {
+    ("Hopper-v5", "101-108", "**PPO-KL, 1M** (held out)"): ("paper_fresh", "PPO-KL"),
+    ("Hopper-v5", "101-108", "**Q-Prop, 1M** (held out)"): ("paper_fresh", "Q-Prop"),
+    ("Hopper-v5", "1-5", "PPO-KL, 1M"): ("paper", "PPO-KL"),
+    ("Hopper-v5", "1-5", "Q-Prop, 1M"): ("paper", "Q-Prop"),
+    ("Hopper-v5", "4-6, 14-19", "**IPG at $\\nu = 1$ in TD3's regime, 300k** (held out)"): (
+        "hopper",
+        "ipg_td3_nu1.0_300k",
+    ),
+    ("Hopper-v5", "1-2, 4-6, 8-19", "PPO-KL, 300k"): ("hopper", "ppo_kl_300k"),
+    ("FetchReach-v4", "21-25", "**IPG+HER** (held out)"): ("mixing", "ipg_her_nu1.0_b100"),
+    ("FetchReach-v4", "1-5", "IPG+HER"): ("paper", "IPG+HER"),
+    ("FetchReach-v4", "1-5", "IPG without HER"): ("paper", "IPG (no HER)"),
+    ("FetchReach-v4", "1-5", "PPO-KL"): ("paper", "PPO-KL"),
+    ("FetchReach-v4", "1-5", "Q-Prop"): ("paper", "Q-Prop"),
+    ("FetchReach-v4", "21-25", "**IPG+HER, side by side** (held out)"): (
+        "paper",
+        "IPG+HER side by side (3,000 steps)",
+    ),
+    ("FetchReach-v4", "21-25", "SB3 DDPG+HER (anchor; the HER paper's settings)"): (
+        "paper",
+        "SB3 DDPG+HER (anchor; 3,000 steps)",
+    ),
+    # FetchPush: results.md's labels, then one_recipe.md's
+    ("FetchPush-v4", "401-403", "**`ipg_her_recipe.py`, 300k, its defaults** (held out)"): (
+        "one_recipe",
+        "ipg_her_300k",
+    ),
+    ("FetchPush-v4", "201-205", "**`ipg_her_recipe.py`, 300k, `--target-std 1.0`** (held out)"): (
+        "fetch_fresh",
+        "ipg_her_300k",
+    ),
+    ("FetchPush-v4", "1-3", "`ipg_her.py`, 1.5M"): ("push", "ipg_her_1500k"),
+    ("FetchPush-v4", "401-403", "**the recipe's defaults** (held out)"): (
+        "one_recipe",
+        "ipg_her_300k",
+    ),
+    ("FetchPush-v4", "201-205", "`--target-std 1.0` (held out)"): ("fetch_fresh", "ipg_her_300k"),
+    ("FetchPickAndPlace-v4", "401-403", "**`ipg_her_recipe.py`, 500k, its defaults** (held out)"): (
+        "one_recipe",
+        "ipg_her_500k",
+    ),
+    (
+        "FetchPickAndPlace-v4",
+        "201-203",
+        "**`ipg_her_recipe.py`, 500k, `--target-std 1.0 1.0 1.0 0.3`** (held out)",
+    ): ("fetch_fresh", "ipg_her_500k"),
+    ("FetchPickAndPlace-v4", "401-403", "**the recipe's defaults** (held out)"): (
+        "one_recipe",
+        "ipg_her_500k",
+    ),
+    ("FetchPickAndPlace-v4", "201-203", "`--target-std 1.0 1.0 1.0 0.3` (held out)"): (
+        "fetch_fresh",
+        "ipg_her_500k",
+    ),
+    ("FetchSlide-v4", "401-403", "`ipg_her_recipe.py`, 1M, its defaults (held out)"): (
+        "one_recipe",
+        "ipg_her_1000k",
+    ),
+    ("FetchSlide-v4", "7-9", "**`ipg_her_recipe.py`, 1M, Slide's flags** (held out)"): (
+        "fetch",
+        "ipg_her_1000k",
+    ),
+    ("FetchSlide-v4", "401-403", "**the recipe's defaults** (held out)"): (
+        "one_recipe",
+        "ipg_her_1000k",
+    ),
+    ("FetchSlide-v4", "7-9", "Slide's flags (held out)"): ("fetch", "ipg_her_1000k"),
+    ("HandReach-v3", "401-403", "**the recipe's defaults, 0.447 for each joint** (held out)"): (
+        "one_recipe",
+        "ipg_her_300k",
+    ),
+    (
+        "HandReach-v3",
+        "301-303",
+        "**`--target-std 1.0 --gamma 0.98`, one summed rule** (held out)",
+    ): ("goals", "ipg_her_300k"),
+    ("HandReach-v3", "301-303", "`--target-std 0.3`, one summed rule ‡"): (
+        "goals",
+        "ipg_her_300k_std03",
+    ),
+    ("HandReach-v3", "301-303", "`--target-std 0.3` for each of the 20 joints ‡"): (
+        "goals",
+        "ipg_her_300k_std03x20",
+    ),
+    ("HandReach-v3", "401-403", "**the recipe's defaults** (held out)"): (
+        "one_recipe",
+        "ipg_her_300k",
+    ),
+    ("HandReach-v3", "301-303", "`--target-std 1.0 --gamma 0.98` (held out)"): (
+        "goals",
+        "ipg_her_300k",
+    ),
+    ("HandReach-v3", "301-303", "0.3 for each joint ‡"): ("goals", "ipg_her_300k_std03x20"),
+    (
+        "HandManipulateBlockRotateZ-v1",
+        "401-403",
+        "**the recipe's defaults, 0.447 for each joint** (held out)",
+    ): ("one_recipe", "ipg_her_1000k"),
+    (
+        "HandManipulateBlockRotateZ-v1",
+        "301-303",
+        "**`--target-std 1.0 --gamma 0.98`, one summed rule** (held out)",
+    ): ("goals", "ipg_her_1000k"),
+    ("HandManipulateBlockRotateZ-v1", "401-403", "**the recipe's defaults** (held out)"): (
+        "one_recipe",
+        "ipg_her_1000k",
+    ),
+    ("HandManipulateBlockRotateZ-v1", "301-303", "`--target-std 1.0 --gamma 0.98` (held out)"): (
+        "goals",
+        "ipg_her_1000k",
+    ),
+    (
+        "PointMaze_Medium-v3",
+        "401-403",
+        "**the recipe's defaults, $\\gamma = 1 - 1/600$** (held out)",
+    ): ("one_recipe", "ipg_her_300k"),
+    (
+        "PointMaze_Medium-v3",
+        "301-303",
+        "**`--target-std 1.0 --gamma 0.98`, one summed rule** (held out)",
+    ): ("goals", "ipg_her_300k"),
+    ("PointMaze_Medium-v3", "301-303", "`--target-std 1.0 --gamma 0.995` ‡"): (
+        "goals",
+        "ipg_her_300k_gamma0995",
+    ),
+    ("PointMaze_Medium-v3", "401-403", "**the recipe's defaults** (held out)"): (
+        "one_recipe",
+        "ipg_her_300k",
+    ),
+    ("PointMaze_Medium-v3", "301-303", "`--target-std 1.0 --gamma 0.98` (held out)"): (
+        "goals",
+        "ipg_her_300k",
+    ),
+}
+TQC = "TQC+HER zoo agent (anchor)"  # the same rows in every Fetch export
+for _task, _suite in (
+    ("FetchPush-v4", "fetch_fresh"),
+    ("FetchPickAndPlace-v4", "fetch_fresh"),
+    ("FetchSlide-v4", "fetch"),
+):
+    SOURCES[_task, "1", "TQC+HER zoo agent (anchor; one seed)"] = (_suite, TQC)
+for _task, _seeds, _suite in (
+    ("HandReach-v3", "401-403", "one_recipe"),
+    ("HandReach-v3", "301-303", "goals"),
+    ("PointMaze_Medium-v3", "401-403", "one_recipe"),
+):
+    SOURCES[_task, _seeds, "SB3 SAC+HER (anchor)"] = (_suite, "SB3 SAC+HER (anchor; zoo settings)")
+PAGES = ["docs/results.md", "docs/investigations/one_recipe.md"]
+
+
+def headline_rows(page: str) -> list[tuple[str, dict]]:
+    """(task, {column: cell}) of every table on ``page`` with a column "final eval: median [95%
+    CI]"; the task is the row's first column (its budget dropped) or the section's heading."""
+    rows, task, header, code = [], None, None, False
+    for line in (ROOT / page).read_text().splitlines():
+        code ^= line.startswith("```")
+        if code:
+            continue
+        if line.startswith("#"):
+            task = line.lstrip("# ").strip()
+        if not line.startswith("|"):
+            header = None
+        elif header is None:
+            header = [re.sub(r"(\d),(\d)", r"\1\2", h.replace("≥", ">=")) for h in split_row(line)]
+        elif not line.startswith("| ---") and FINAL in header:
+            cells = dict(zip(header, split_row(line), strict=True))
+            own = cells.get("task (budget)", "").split(" (")[0]
+            rows.append((own or task, cells))
+    return rows
+
+
+@pytest.mark.parametrize("page", PAGES)
+def test_each_headline_row_of_the_results_pages_is_its_exports(page):
+    """Every row of the page's headline tables names its export row here (SOURCES: a new row
+    must be added), and its seeds, final evaluation and steps to each level are that row's, as
+    report.py computes it from the export."""
+    rows = headline_rows(page)
+    assert len(rows) >= 15, f"{page}: its headline tables were not found"
+    for task, cells in rows:
+        label = cells.get("settings") or cells.get("algorithm") or cells["algorithm, budget"]
+        key = (task, cells["seeds"], label)
+        assert key in SOURCES, f"{page}: the row {key} names no export in SOURCES"
+        suite, name = SOURCES[key]
+        for column in [c for c in cells if c == FINAL or c.startswith("first eval")]:
+            computed = export_cell(suite, task, name, column, cells["seeds"])
+            assert cells[column] == computed, (
+                f"{page}, {key}, {column}: the {suite} export gives {computed!r}"
+            )
