@@ -12,7 +12,9 @@ steps and training time to three levels, and the anchor, the peer to beat, where
 (default ``docs/img/{the results folder's name}``: the docs site serves only ``docs/``), linked
 from ``results.md``. What a suite's report shows beyond the common tables (its figures, budgets,
 levels) is its ``Report`` in ``benchmarks/run.py``'s ``SUITES``. Run folders that lack a run of
-the export they would replace are refused (``--keep-export``, ``--replace-export``).
+the export they would replace are refused (``--keep-export``, ``--replace-export``); a run folder
+left out of the report (failed, stopped, still running, no exit code) is named in a warning saying
+why.
 """
 
 import itertools
@@ -35,6 +37,7 @@ import tyro  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.run import SUITES, Report  # noqa: E402  each suite's settings, beside its runs
+from benchmarks.run import running as live_pid  # noqa: E402
 
 DIAGNOSTICS = ("ipg/effective_nu", "ipg/grad_var", "ipg/grad_var_cv", "ipg/corr_adv_cv",
                "qprop/grad_var", "qprop/grad_var_cv", "qprop/corr_adv_cv")  # fmt: skip
@@ -179,19 +182,23 @@ def downsample(points: list, n: int = 300) -> list:
 def collect(runs_dir: Path, window: int, include_unfinished: bool = False) -> dict:
     """{group "name__env_id": {seed: run}} from the folders run.py wrote. Each run keeps its
     summary (``final``, ``reach``) computed from the full event data, and curves downsampled for
-    plotting: the export stays small and still reproduces the table exactly. Runs that did not
-    finish are left out, or with ``include_unfinished``, those that were stopped (no exit code,
-    or a signal's) with a resume point to go on from are kept with ``unfinished_at``, the last
-    step they logged; a run that failed is never read, nor one whose event files are damaged or
-    hold no scalars (a warning names it)."""
+    plotting: the export stays small and still reproduces the table exactly. Only runs whose
+    ``exit_code`` is 0 are read, or with ``include_unfinished``, also those that were stopped (no
+    exit code, or a signal's) with a resume point to go on from, kept with ``unfinished_at``, the
+    last step they logged. Every other run folder is left out with a warning saying why (failed,
+    stopped, still running, no exit code), as is one whose event files are damaged or hold no
+    scalars."""
     groups = defaultdict(dict)
-    for folder in sorted(runs_dir.iterdir()):
+    for folder in sorted(p for p in runs_dir.iterdir() if p.is_dir()):
         code = folder / "exit_code"
-        code = int(code.read_text()) if code.exists() else None
+        text = code.read_text().strip() if code.exists() else None
+        code = int(text) if text and re.fullmatch(r"-?[0-9]+", text) else None
         stopped = code is None or code < 0 or code in (130, 137, 143)  # killed, not failed
         resumable = stopped and any(folder.glob("*/resume.pt"))
         done = code == 0
         if not (done or (include_unfinished and resumable)):
+            why = left_out(folder, text, code, stopped, resumable)
+            print(f"warning: {folder}: {why}", file=sys.stderr)
             continue
         name, env_id, seed = folder.name.split("__")
         event_dirs = [p for p in folder.iterdir() if p.is_dir()]
@@ -214,6 +221,28 @@ def collect(runs_dir: Path, window: int, include_unfinished: bool = False) -> di
                 run[tag] = downsample(run[tag], 100 if tag in DIAGNOSTICS else 300)
         groups[f"{name}__{env_id}"][seed.removeprefix("seed")] = run
     return groups
+
+
+def left_out(
+    folder: Path, text: str | None, code: int | None, stopped: bool, resumable: bool
+) -> str:
+    """Why a run folder is not read, for its warning. Only ``exit_code`` 0, which run.py writes
+    when the run's process has ended, says that a run finished: without the file a run may be
+    running, or may have been stopped with its runner (kill -9, a machine's end) at any step."""
+    resume = "; --include-unfinished reads it at its last step" if resumable else ""
+    if not stopped:
+        return f"failed (exit code {code}, see its stderr.log); left out"
+    if code is not None:
+        return f"stopped by a signal (exit code {code}) before its end; left out{resume}"
+    if text is not None:  # its runner was stopped while writing it
+        return f"its exit_code holds {text!r}, not an exit code; left out{resume}"
+    if pid := live_pid(folder):
+        return f"still running (pid {pid}), so no exit_code yet; left out{resume}"
+    return (
+        "no exit_code, which benchmarks/run.py writes when a run ends, so it is not known to have "
+        "finished (its runner was stopped first); left out: run.py on the suite again runs it to "
+        f"its end, from its resume point if it has one{resume}"
+    )
 
 
 def iqm(x: np.ndarray) -> float:

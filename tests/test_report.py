@@ -687,3 +687,40 @@ def test_a_suite_run_py_does_not_know_is_refused_before_anything_is_written(tmp_
     result = subprocess.run(cmd + folders, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert_clean_error(result, "--suite fetch_fresh: not a suite", "--results-dir")
     assert snapshot(tmp_path) == before
+
+
+def test_every_run_folder_left_out_is_named_with_why(tmp_path, capsys):
+    """A run whose runner was stopped before it wrote exit_code (kill -9 after the run's end) is
+    not known to have finished: it is left out, but not silently; so are a run still running,
+    a failed one, a stopped one and one whose exit_code was cut short. Finished runs are read."""
+    runs = tmp_path / "runs" / "test"
+    codes = {1: "0\n", 2: None, 3: None, 4: "1\n", 5: "130\n", 6: ""}
+    for seed, code in codes.items():
+        write_run(runs, "algo", "Hopper-v5", seed, [100.0] * 10)
+        folder = runs / f"algo__Hopper-v5__seed{seed}"
+        (folder / "exit_code").unlink() if code is None else (folder / "exit_code").write_text(code)
+    running = runs / "algo__Hopper-v5__seed3"  # a process whose command line names the run
+    (runs / "notes.txt").write_text("not a run folder")
+    capsys.readouterr()
+    sleep = "import time; print(flush=True); time.sleep(60)"
+    with subprocess.Popen(
+        [sys.executable, "-c", sleep, running.name], stdout=subprocess.PIPE
+    ) as sleeper:
+        sleeper.stdout.readline()  # started: its command line is its own
+        (running / "pid").write_text(f"{sleeper.pid}\n")
+        try:
+            assert list(report.collect(runs, WINDOW)["algo__Hopper-v5"]) == ["1"]
+        finally:
+            sleeper.kill()
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warn")]
+    why = {
+        2: "no exit_code, which benchmarks/run.py writes when a run ends",
+        3: f"still running (pid {sleeper.pid})",
+        4: "failed (exit code 1",
+        5: "stopped by a signal (exit code 130)",
+        6: "its exit_code holds ''",
+    }
+    assert len(warnings) == len(why), warnings
+    for (seed, needle), line in zip(why.items(), warnings, strict=True):
+        assert line.startswith(f"warning: {runs}/algo__Hopper-v5__seed{seed}: ") and needle in line
+        assert line.endswith(("left out", "if it has one")), line
