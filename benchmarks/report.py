@@ -970,11 +970,33 @@ def refuse(message: str) -> int:
     return 2
 
 
+def read_export(path: Path) -> dict:
+    """The runs of an export, {group "name__env_id": {seed: run}}; ValueError for a file that is
+    not one (damaged, or JSON of another shape: a list, a number)."""
+    text = path.read_text()
+    groups = json.loads(text)
+    if not isinstance(groups, dict):
+        raise ValueError(
+            f'its JSON is {text.strip()[:20]!r}, not an object {{"name__env_id": ...}}'
+        )
+    for group, runs in groups.items():
+        if group.count("__") != 1 or not isinstance(runs, dict):
+            raise ValueError(f'{group!r} is not a group "name__env_id" of runs {{seed: run}}')
+        if not all(isinstance(run, dict) for run in runs.values()):
+            raise ValueError(f"a run of {group} is not an object")
+    return groups
+
+
 def main(args: Args) -> int:
     if args.suite not in SUITES:  # its settings would be guessed and its results.md rewritten
         known = ", ".join(SUITES)
         return refuse(f"--suite {args.suite}: not a suite of benchmarks/run.py ({known}); "
                       "--results-dir names another export folder")  # fmt: skip
+    if args.window < 1:
+        return refuse(
+            f"--window {args.window}: the final return is the mean of the last --window training "
+            "episodes; give 1 or more"
+        )
     # a bad --page is caught before anything is read or written
     page = Path(args.page)
     start, end = f"<!-- results:{args.suite}:start -->", f"<!-- results:{args.suite}:end -->"
@@ -984,10 +1006,23 @@ def main(args: Args) -> int:
     if args.page and not page.read_text().count(start) == page.read_text().count(end) == 1:
         return refuse(f"--page {page} needs the markers {start} and {end}, once each, around "
                       "the place to write; add them")  # fmt: skip
+    merged = Path(args.merge_export)
+    if args.merge_export and not merged.is_file():
+        return refuse(
+            f"--merge-export {merged}: no such file; name an earlier curves.json, or leave out "
+            "--merge-export"
+        )
+    try:
+        to_merge = read_export(merged) if args.merge_export else {}
+    except (OSError, ValueError) as error:
+        return refuse(
+            f"--merge-export {merged} is not a readable export ({error}); name an earlier "
+            "curves.json"
+        )
     results = Path(args.results_dir or f"benchmarks/results/{args.suite}")
     export = results / "curves.json"
     try:
-        old = json.loads(export.read_text()) if export.is_file() else {}
+        old = read_export(export) if export.is_file() else {}
     except ValueError as error:  # a damaged export: restored or replaced, never merged
         if args.from_export or not args.replace_export:
             return refuse(f"{export} is not a readable export ({error}); restore it (git "
@@ -1012,12 +1047,10 @@ def main(args: Args) -> int:
                 for seed, run in runs.items():
                     if seed not in groups.get(group, {}) and "measured_on" not in run:
                         groups[group][seed] = run | {"kept": True}
-        if args.merge_export:  # rows the runs lack, from an earlier export, kept visibly apart
-            earlier = json.loads(Path(args.merge_export).read_text())
-            for group, runs in earlier.items():
-                if group not in groups:
-                    groups[group] = {seed: run | {"measured_on": args.merge_label}
-                                     for seed, run in runs.items()}  # fmt: skip
+        for group, runs in to_merge.items():  # rows the runs lack, kept visibly apart
+            if group not in groups:
+                groups[group] = {seed: run | {"measured_on": args.merge_label}
+                                 for seed, run in runs.items()}  # fmt: skip
         lost = [
             f"{g} seed {s}" for g, runs in old.items() for s in runs if s not in groups.get(g, {})
         ]

@@ -724,3 +724,51 @@ def test_every_run_folder_left_out_is_named_with_why(tmp_path, capsys):
     for (seed, needle), line in zip(why.items(), warnings, strict=True):
         assert line.startswith(f"warning: {runs}/algo__Hopper-v5__seed{seed}: ") and needle in line
         assert line.endswith(("left out", "if it has one")), line
+
+
+def the_error_line(capsys) -> str:
+    """The one ``error:`` line report.main wrote to stderr (it fails if there are more, or none)."""
+    errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1, errors
+    return errors[0]
+
+
+@pytest.mark.parametrize("content", ["[]", "3", '{"ppo_kl__Hopper-v5": [1, 2]}', '{"a": {}}'])
+@pytest.mark.parametrize("from_export", [False, True])
+def test_an_export_of_another_shape_is_one_error_line_and_nothing_is_written(
+    tmp_path, capsys, content, from_export
+):
+    """An export that is JSON but not an object of groups of runs, read to redraw or to be
+    replaced: one error line naming it, and nothing written."""
+    write_run(tmp_path / "runs" / "quick", "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
+    (tmp_path / "results").mkdir()
+    (tmp_path / "results" / "curves.json").write_text(content)
+    before = snapshot(tmp_path)
+    capsys.readouterr()
+    assert report.main(report_args(tmp_path, "quick", from_export=from_export)) == 2
+    assert "curves.json is not a readable export" in the_error_line(capsys)
+    assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize(
+    "flags, needle",
+    [
+        ({"merge_export": "no_such.json"}, "no_such.json: no such file"),
+        ({"merge_export": "list.json"}, "list.json is not a readable export"),
+        ({"window": 0}, "--window 0:"),
+        ({"window": -5}, "--window -5:"),
+    ],
+)
+def test_a_bad_merge_export_or_window_is_one_error_line_before_anything_is_written(
+    tmp_path, capsys, flags, needle
+):
+    """--merge-export naming no file or no export, --window 0 or below (Hopper's windowed return
+    would be a traceback): one error line naming it, and nothing written."""
+    write_run(tmp_path / "runs" / "quick", "ppo_kl", "Hopper-v5", 1, [100.0] * 10)
+    (tmp_path / "list.json").write_text("[]")
+    flags = {k: str(tmp_path / v) if k == "merge_export" else v for k, v in flags.items()}
+    before = snapshot(tmp_path)
+    capsys.readouterr()
+    assert report.main(report_args(tmp_path, "quick", **flags)) == 2
+    assert needle in the_error_line(capsys)
+    assert snapshot(tmp_path) == before
