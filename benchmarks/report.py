@@ -9,12 +9,12 @@ they were measured: among them one per task with the median and IQM of the final
 steps and training time to three levels, and the anchor, the peer to beat, where one is recorded:
 ``ANCHORS`` below, ``benchmarks/results/against_sb3/results.json``, and the anchor's own runs in
 ``benchmarks/results/anchors/``), and PNG figures, the anchor drawn in, into ``--figures-dir``
-(default ``docs/img/{the results folder's name}``: the docs site serves only ``docs/``), linked
-from ``results.md``. What a suite's report shows beyond the common tables (its figures, budgets,
-levels) is its ``Report`` in ``benchmarks/run.py``'s ``SUITES``. Run folders that lack a run of
-the export they would replace are refused (``--keep-export``, ``--replace-export``); a run folder
-left out of the report (failed, stopped, still running, no exit code) is named in a warning saying
-why.
+(default ``docs/img/{suite}`` for the suite's own results folder, as the docs site serves only
+``docs/``, and the ``--results-dir`` folder itself for any other), linked from ``results.md``. What
+a suite's report shows beyond the common tables (its figures, budgets, levels) is its ``Report``
+in ``benchmarks/run.py``'s ``SUITES``. Run folders that lack a run of the export they would
+replace are refused (``--keep-export``, ``--replace-export``); a run folder left out of the report
+(failed, stopped, still running, no exit code) is named in a warning saying why.
 """
 
 import itertools
@@ -84,8 +84,9 @@ class Args:
     results_dir: str = ""
     """where to write the export and results.md (default benchmarks/results/{suite})"""
     figures_dir: str = ""
-    """where to draw the figures (default docs/img/{the results folder's name}: the docs site serves
-    only docs/, and results.md links them there)"""
+    """where to draw the figures, linked from results.md (default: docs/img/{suite} for the suite's
+    own results folder, as the docs site serves only docs/; the --results-dir folder itself for
+    any other)"""
     from_export: bool = False
     """redraw from the results folder's curves.json instead of the event files"""
     window: int = 100
@@ -1019,7 +1020,12 @@ def main(args: Args) -> int:
             f"--merge-export {merged} is not a readable export ({error}); name an earlier "
             "curves.json"
         )
-    results = Path(args.results_dir or f"benchmarks/results/{args.suite}")
+    own = Path(f"benchmarks/results/{args.suite}")
+    results = Path(args.results_dir or own)
+    # the suite's own results have their figures in the docs; any other results folder keeps its
+    # figures inside it, so that it never replaces the committed figures of a suite
+    default_figures = f"docs/img/{args.suite}" if results.resolve() == own.resolve() else results
+    figures_dir = Path(args.figures_dir or default_figures)
     export = results / "curves.json"
     try:
         old = read_export(export) if export.is_file() else {}
@@ -1060,7 +1066,6 @@ def main(args: Args) -> int:
                           f"({lost[0]}, ...), so the export is left as it is: --keep-export "
                           "keeps them, --replace-export drops them")  # fmt: skip
     results.mkdir(parents=True, exist_ok=True)
-    figures_dir = Path(args.figures_dir or f"docs/img/{results.name}")
     figures_dir.mkdir(parents=True, exist_ok=True)
     settings = SUITES[args.suite].report
     if not args.from_export:

@@ -772,3 +772,26 @@ def test_a_bad_merge_export_or_window_is_one_error_line_before_anything_is_writt
     assert report.main(report_args(tmp_path, "quick", **flags)) == 2
     assert needle in the_error_line(capsys)
     assert snapshot(tmp_path) == before
+
+
+def test_a_results_dir_elsewhere_keeps_its_figures_and_never_takes_a_suites(tmp_path, monkeypatch):
+    """``--results-dir /elsewhere/paper`` without --figures-dir drew into docs/img/paper, over the
+    paper suite's committed figures: the figures now go into the results folder given, linked
+    from its results.md. The suite's own results folder, however spelled, keeps docs/img/{suite}."""
+    write_run(tmp_path / "runs" / "quick", "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
+    monkeypatch.chdir(tmp_path)  # report.py's defaults are relative to the project root
+    committed = tmp_path / "docs" / "img" / "paper" / "fig5_fetchreach_success.png"
+    committed.parent.mkdir(parents=True)
+    committed.write_bytes(b"the paper suite's figure")
+    elsewhere = tmp_path / "elsewhere" / "paper"
+    args = report.Args(suite="quick", runs_dir="runs", results_dir=str(elsewhere))
+    assert report.main(args) == 0
+    assert committed.read_bytes() == b"the paper suite's figure"
+    assert [p.name for p in (tmp_path / "docs" / "img").iterdir()] == ["paper"]
+    assert (elsewhere / "fig5_fetchreach_success.png").stat().st_size > 0
+    link = "\n![fig5_fetchreach_success.png](fig5_fetchreach_success.png)\n"
+    assert link in (elsewhere / "results.md").read_text()
+    args = report.Args(suite="quick", runs_dir="runs", results_dir="./benchmarks/results/quick")
+    assert report.main(args) == 0
+    assert (tmp_path / "docs" / "img" / "quick" / "fig5_fetchreach_success.png").is_file()
+    assert not list((tmp_path / "benchmarks" / "results" / "quick").glob("*.png"))
