@@ -10,13 +10,16 @@ steps and training time to three levels, and the anchor, the peer to beat, where
 ``ANCHORS`` below, ``benchmarks/results/against_sb3/results.json``, and the anchor's own runs in
 ``benchmarks/results/anchors/``), and PNG figures, the anchor drawn in, into ``--figures-dir``
 (default ``docs/img/{suite}`` for the suite's own results folder, as the docs site serves only
-``docs/``, and the ``--results-dir`` folder itself for any other), linked from ``results.md``. What
-a suite's report shows beyond the common tables (its figures, budgets, levels) is its ``Report``
-in ``benchmarks/run.py``'s ``SUITES``. Run folders that lack a run of the export they would
-replace are refused (``--keep-export``, ``--replace-export``); a run folder left out of the report
-(failed, stopped, still running, no exit code) is named in a warning saying why.
+``docs/``, and the ``--results-dir`` folder itself for any other), linked from ``results.md``. The
+files change together or not at all (each written beside itself, then renamed over it). What a
+suite's report shows beyond the common tables (its figures, budgets, levels) is its ``Report`` in
+``benchmarks/run.py``'s ``SUITES``. Run folders that lack a run of the export they would replace
+are refused (``--keep-export``, ``--replace-export``); a run folder left out of the report (failed,
+stopped, still running, no exit code) is named in a warning saying why.
 """
 
+import contextlib
+import errno
 import itertools
 import json
 import os
@@ -827,32 +830,32 @@ def diagnostics_table(groups: dict) -> str:
     return "\n".join(rows) if len(rows) > 2 else ""
 
 
-def draw_paper_figures(groups: dict, results: Path, rng, peers: dict | None = None) -> list[str]:
+def draw_paper_figures(groups: dict, rng, peers: dict | None = None) -> dict:
     """The paper's Figures 3 (Hopper: length and return), 4 (FetchReach: entropy and return) and
-    5 (success, with FetchReach's anchor among ``peers``); none for a task without runs."""
-    tasks, figures = {g.split("__")[1] for g in groups}, []
+    5 (success, with FetchReach's anchor among ``peers``), {file name: figure}; none for a task
+    without runs."""
+    tasks, figures = {g.split("__")[1] for g in groups}, {}
 
-    def save(fig, name: str) -> None:
+    def add(fig, name: str) -> None:
         fig.tight_layout()
-        fig.savefig(results / name, dpi=100)
-        figures.append(name)
+        figures[name] = fig
 
     if "Hopper-v5" in tasks:
         fig, axes = plt.subplots(1, 2, figsize=(11, 4))
         for ax, tag in zip(axes, ("charts/episodic_length", "charts/episodic_return"), strict=True):
             plot(ax, groups, ["ppo_kl", "qprop_ppo"], "Hopper-v5", tag, rng, smooth=20)
-        save(fig, "fig3_hopper.png")
+        add(fig, "fig3_hopper.png")
     if "FetchReach-v4" in tasks:
         fig, axes = plt.subplots(1, 2, figsize=(11, 4))
         names = ["ppo_kl", "qprop_ppo", "ipg_her"]
         plot(axes[0], groups, names, "FetchReach-v4", "charts/policy_entropy", rng)
         plot(axes[1], groups, names, "FetchReach-v4", "charts/episodic_return", rng, smooth=10)
-        save(fig, "fig4_fetchreach.png")
+        add(fig, "fig4_fetchreach.png")
         fig, ax = plt.subplots(figsize=(6, 4))
         plot(ax, groups, ["ppo_kl", "ipg", "ipg_her"], "FetchReach-v4", "eval/success_rate", rng,
              per_episode=True)  # fmt: skip
         draw_anchors(ax, (peers or {}).get("FetchReach-v4", []), per_episode=True)
-        save(fig, "fig5_fetchreach_success.png")
+        add(fig, "fig5_fetchreach_success.png")
     return figures
 
 
@@ -879,11 +882,12 @@ def mixing_variant(group: str) -> tuple[float, str, str] | None:
     return (float(match[1]), match[2], env_id) if match else None
 
 
-def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> list[str]:
+def draw_mixing_figures(groups: dict, rng, early: int = 5000) -> dict:
     """Per task: evaluation success against nu, finally and at an ``early`` budget, one line per
     variant (on-policy batch, control variate), mean over seeds with 95% bootstrap intervals;
-    and the diagnostics over training: effective nu and the control variate's variance ratio."""
-    figures = []
+    and the diagnostics over training: effective nu and the control variate's variance ratio;
+    {file name: figure}."""
+    figures = {}
     parsed = {g: mixing_variant(g) for g in groups}
     for env_id in sorted({p[2] for p in parsed.values() if p}):
         variants = defaultdict(dict)  # variant -> {nu: [runs]}
@@ -917,8 +921,7 @@ def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> 
             ax.grid(alpha=0.3)
             ax.legend(fontsize=8)
         fig.tight_layout()
-        figures.append(f"mixing_{env_id}_nu.png")
-        fig.savefig(results / figures[-1], dpi=100)
+        figures[f"mixing_{env_id}_nu.png"] = fig
         fig, axes = plt.subplots(1, 2, figsize=(11, 4))
         for variant in sorted(variants):
             for nu in sorted(variants[variant]):
@@ -939,17 +942,15 @@ def draw_mixing_figures(groups: dict, results: Path, rng, early: int = 5000) -> 
             ax.grid(alpha=0.3)
         axes[0].legend(fontsize=6, ncol=2)
         fig.tight_layout()
-        figures.append(f"mixing_{env_id}_diagnostics.png")
-        fig.savefig(results / figures[-1], dpi=100)
+        figures[f"mixing_{env_id}_diagnostics.png"] = fig
     return figures
 
 
-def draw_task_figures(groups: dict, results: Path, rng, peers: dict, suite: str,
-                      settings: Report) -> list[str]:  # fmt: skip
+def draw_task_figures(groups: dict, rng, peers: dict, suite: str, settings: Report) -> dict:
     """One figure per task with every variant of the suite: a goal task's evaluation success (in
     episodes or steps, mean or median as ``settings`` say) with its anchors among ``peers``, any
-    other task's training return."""
-    figures = []
+    other task's training return; {file name: figure}."""
+    figures = {}
     for env_id in sorted({g.split("__")[1] for g in groups}):
         names = sorted(g.split("__")[0] for g in groups if g.endswith(f"__{env_id}"))
         fig, ax = plt.subplots(figsize=(7, 4))
@@ -960,8 +961,7 @@ def draw_task_figures(groups: dict, results: Path, rng, peers: dict, suite: str,
         else:
             plot(ax, groups, names, env_id, "charts/episodic_return", rng, smooth=20)
         fig.tight_layout()
-        figures.append(f"{suite}_{env_id}.png")
-        fig.savefig(results / figures[-1], dpi=100)
+        figures[f"{suite}_{env_id}.png"] = fig
     return figures
 
 
@@ -986,6 +986,30 @@ def read_export(path: Path) -> dict:
         if not all(isinstance(run, dict) for run in runs.values()):
             raise ValueError(f"a run of {group} is not an object")
     return groups
+
+
+def write_together(files: dict) -> None:
+    """Write each file of ``files`` ({path: text, or a figure to save as PNG}) to a temporary
+    beside it, then rename each over its file (a rename within a folder is atomic), so that the
+    files change together or not at all: an OSError while writing (a read-only folder, a full
+    disk) removes the temporaries and leaves every file as it was; it is raised naming the file."""
+    temporaries = {}
+    try:
+        for path, content in files.items():
+            if path.is_dir():  # found now, not when half the files are renamed
+                raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR))
+            temporaries[path] = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+            if isinstance(content, str):
+                temporaries[path].write_text(content)
+            else:
+                content.savefig(temporaries[path], dpi=100, format="png")
+    except OSError as error:
+        for temporary in temporaries.values():
+            with contextlib.suppress(OSError):
+                temporary.unlink(missing_ok=True)
+        raise OSError(error.errno, error.strerror or str(error), str(path)) from error
+    for path, temporary in temporaries.items():
+        os.replace(temporary, path)
 
 
 def main(args: Args) -> int:
@@ -1065,11 +1089,7 @@ def main(args: Args) -> int:
             return refuse(f"{len(lost)} of the {n} runs in {export} are not in {runs_dir} "
                           f"({lost[0]}, ...), so the export is left as it is: --keep-export "
                           "keeps them, --replace-export drops them")  # fmt: skip
-    results.mkdir(parents=True, exist_ok=True)
-    figures_dir.mkdir(parents=True, exist_ok=True)
     settings = SUITES[args.suite].report
-    if not args.from_export:
-        export.write_text(json.dumps(groups, separators=(",", ":")))
     rng = np.random.default_rng(args.seed)
     peers = load_peers(Path(args.side_by_side) if args.side_by_side else SIDE_BY_SIDE)
     suite_seeds = defaultdict(set)  # the seeds this suite ran each task on
@@ -1081,12 +1101,11 @@ def main(args: Args) -> int:
         peers[env_id] += anchors
 
     if settings.figures == "paper":
-        figures = draw_paper_figures(groups, figures_dir, rng, peers)
+        figures = draw_paper_figures(groups, rng, peers)
     elif settings.figures == "mixing":
-        figures = draw_mixing_figures(groups, figures_dir, rng)
+        figures = draw_mixing_figures(groups, rng)
     else:
-        figures = draw_task_figures(groups, figures_dir, rng, peers, args.suite, settings)
-    plt.close("all")
+        figures = draw_task_figures(groups, rng, peers, args.suite, settings)
 
     episodes = {}  # evaluation episodes per task, from the runs' own hyperparameters
     for group, runs in groups.items():
@@ -1173,14 +1192,27 @@ the median [min, max] over seeds of the last evaluation at or before each budget
     links = lambda where: "\n".join(  # noqa: E731
         f"![{f}]({os.path.relpath(figures_dir / f, where)})" for f in figures
     )
-    (results / "results.md").write_text(f"{text}\n{links(results)}\n")
-    print(text)
+    files = {} if args.from_export else {export: json.dumps(groups, separators=(",", ":"))}
+    files |= {figures_dir / name: fig for name, fig in figures.items()}
+    files[results / "results.md"] = f"{text}\n{links(results)}\n"
     if args.page:
         before, rest = page.read_text().split(start)
         images = links(page.parent)
         note = "<!-- written by benchmarks/report.py: do not edit by hand -->"
-        block = f"{start}\n{note}\n{text}\n{images}\n{end}"
-        page.write_text(before + block + rest.split(end)[1])
+        files[page] = before + f"{start}\n{note}\n{text}\n{images}\n{end}" + rest.split(end)[1]
+    try:
+        results.mkdir(parents=True, exist_ok=True)
+        figures_dir.mkdir(parents=True, exist_ok=True)
+        write_together(files)
+    except OSError as error:
+        full = " (the disk is full)" if error.errno in (errno.ENOSPC, errno.EDQUOT) else ""
+        return refuse(
+            f"could not write {error.filename}: {error.strerror}{full}; the export, results.md, "
+            "the figures and --page are left as they were"
+        )
+    finally:
+        plt.close("all")
+    print(text)
     return 0
 
 

@@ -1,10 +1,14 @@
 """benchmarks/report.py's statistics against values computed by hand, on hand-made event files."""
 
+import contextlib
 import dataclasses
+import errno
 import json
+import os
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -795,3 +799,71 @@ def test_a_results_dir_elsewhere_keeps_its_figures_and_never_takes_a_suites(tmp_
     assert report.main(args) == 0
     assert (tmp_path / "docs" / "img" / "quick" / "fig5_fetchreach_success.png").is_file()
     assert not list((tmp_path / "benchmarks" / "results" / "quick").glob("*.png"))
+
+
+@contextlib.contextmanager
+def read_only(folder):
+    """``folder`` made read-only for a while: chmod 555, or for root (whom it does not stop)
+    chattr +i."""
+    folder.chmod(0o555)
+    immutable = os.access(folder, os.W_OK)  # root
+    if immutable and subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode:
+        folder.chmod(0o755)
+        pytest.skip("root, and chattr +i is not permitted here")
+    try:
+        yield folder
+    finally:
+        if immutable:
+            subprocess.run(["chattr", "-i", str(folder)], check=True)
+        folder.chmod(0o755)
+
+
+def report_again_with_a_new_seed(tmp_path, **flags) -> dict:
+    """A first report of the quick suite (seed 1) under ``tmp_path``, then a second seed's run,
+    which a second report would add to every file: a snapshot of the files before it."""
+    runs = tmp_path / "runs" / "quick"
+    write_run(runs, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
+    assert report.main(report_args(tmp_path, "quick", **flags)) == 0
+    write_run(runs, "ipg_her", "FetchReach-v4", 2, [-50] * 3, [0.0, 0.5])
+    return snapshot(tmp_path)
+
+
+@pytest.mark.parametrize("folder", ["results", "img"])
+def test_a_folder_it_cannot_write_in_is_one_error_line_and_no_file_changes(tmp_path, folder):
+    """A read-only results folder, or figures folder (the export, written first, would already be
+    replaced): one error line naming the file, and the export, results.md and the figures as they
+    were, no temporary left beside them."""
+    before = report_again_with_a_new_seed(tmp_path)
+    folders = {"--runs-dir": "runs", "--results-dir": "results", "--figures-dir": "img"}
+    cmd = [sys.executable, "benchmarks/report.py", "--suite", "quick"]
+    cmd += [f"{flag}={tmp_path / folder}" for flag, folder in folders.items()]
+    with read_only(tmp_path / folder):
+        result = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert_clean_error(result, f"could not write {tmp_path / folder}", "left as they were")
+    assert snapshot(tmp_path) == before
+
+
+def test_a_full_disk_between_the_export_and_results_md_changes_no_file(
+    tmp_path, monkeypatch, capsys
+):
+    """The disk fills up (ENOSPC) when results.md is written, after the export: one error line
+    saying so, and the export, results.md, the figures and --page as they were, no temporary
+    left."""
+    page = tmp_path / "page.md"
+    page.write_text("<!-- results:quick:start -->\n<!-- results:quick:end -->\n")
+    before = report_again_with_a_new_seed(tmp_path, page=str(page))
+    write_text = Path.write_text
+
+    def full_disk(path, *args, **kwargs):
+        if "results.md" in path.name:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+        return write_text(path, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "write_text", full_disk)
+    capsys.readouterr()
+    assert report.main(report_args(tmp_path, "quick", page=str(page))) == 2
+    error = the_error_line(capsys)
+    assert "results.md" in error and error.endswith(
+        "(the disk is full); the export, results.md, the figures and --page are left as they were"
+    )
+    assert snapshot(tmp_path) == before
