@@ -19,6 +19,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from benchmarks import report  # noqa: E402
+from benchmarks.run import SUITES as RUNS  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 SUITES = sorted(path.parent.name for path in RESULTS.glob("*/curves.json"))
@@ -471,3 +472,65 @@ def test_each_headline_row_of_the_results_pages_is_its_exports(page):
             assert cells[column] == computed, (
                 f"{page}, {key}, {column}: the {suite} export gives {computed!r}"
             )
+
+
+# ---------------------------------------------------------------------------------------------
+# where the recipe's defaults lose: the figures and the flags its help and its page give
+
+# task: (budget, the export row of the flags that won, its suite and seeds, the flags as written)
+WINNERS = {
+    "FetchSlide-v4": (
+        "1M",
+        "ipg_her_1000k",
+        "fetch",
+        "7-9",
+        "--target-std 0.3 0.3 0.3 1 --action-l2 0 --bounds-loss 1 --anneal-lr",
+    ),
+    "FetchPickAndPlace-v4": (
+        "500k",
+        "ipg_her_500k",
+        "fetch_fresh",
+        "201-203",
+        "--target-std 1.0 1.0 1.0 0.3",
+    ),
+}
+SETTINGS_ONLY = {"total_timesteps", "eval_freq", "eval_episodes", "resume_freq", "exp_name"}
+
+
+@pytest.mark.parametrize("task", WINNERS)
+def test_the_flags_the_docs_give_are_the_ones_the_winning_runs_ran(task):
+    """The flags written beside a task where the defaults lose set what the fetch suite's row
+    (benchmarks/run.py) set: parsed by the recipe's own parser, the same settings."""
+    from conftest import parse
+
+    import ipg_her_recipe
+
+    _, name, _, _, flags = WINNERS[task]
+    ran = next(row[3] for row in RUNS["fetch"].rows if row[0] == name and row[2] == task)
+    settings = [
+        vars(parse(ipg_her_recipe, "--env-id", task, *argv)) for argv in (ran, flags.split())
+    ]
+    assert {k: v for k, v in settings[0].items() if k not in SETTINGS_ONLY} == {
+        k: v for k, v in settings[1].items() if k not in SETTINGS_ONLY
+    }, f"{task}: the docs' {flags!r} is not what benchmarks/run.py ran ({' '.join(ran)})"
+
+
+@pytest.mark.parametrize("task", WINNERS)
+def test_the_recipes_help_and_page_say_where_its_defaults_lose(task):
+    """ipg_her_recipe.py's docstring, its --help text (Args) and its page give, for each task where
+    its defaults lose on held-out seeds, the defaults' last evaluation, the flags that won and
+    theirs, as the exports give them."""
+    import ipg_her_recipe
+
+    budget, name, suite, seeds, flags = WINNERS[task]
+    lose = median(final_eval("one_recipe", task, name, "401-403"))
+    win = median(final_eval(suite, task, name, seeds))
+    page = (ROOT / "docs" / "ipg_her_recipe.md").read_text()
+    for where, text in (
+        ("the module's docstring", ipg_her_recipe.__doc__),
+        ("--help (Args)", ipg_her_recipe.Args.__doc__),
+        ("docs/ipg_her_recipe.md", page.split("## The additions")[0]),
+    ):
+        text = " ".join(text.replace("`", "").split())
+        for phrase in (task.split("-")[0], f"{lose} at {budget}", flags, f"reached {win}"):
+            assert phrase in text, f"{where}: no {phrase!r} where the defaults lose on {task}"
