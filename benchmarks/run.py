@@ -62,6 +62,7 @@ import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
 RAY = "ray==2.60.0"  # requirements-test.txt's pin, the Ray the ray backend is tested with
+WANDB = "wandb==0.31.0"  # --track's, as requirements-test.txt pins it
 
 
 @dataclass
@@ -87,6 +88,8 @@ class Args:
     """print the commands and exit"""
     push_steps: int = 1_500_000
     """the push suite's budget per run (in its runs' names; resumable every 50,000 steps)"""
+    track: bool = False
+    """pass --track to every run (Weights & Biases), the suite as the W&B group"""
 
 
 @dataclass(frozen=True)
@@ -101,12 +104,12 @@ class Run:
     def folder(self) -> str:
         return f"{self.name}__{self.env_id}__seed{self.seed}"
 
-    def command(self, run_dir: Path) -> list[str]:
+    def command(self, run_dir: Path, track: bool = False) -> list[str]:
         """The run's command; where an interrupted attempt left a resume point (ipg_her.py's
         ``--resume-freq``), it goes on from the latest one instead of starting again."""
         command = [sys.executable, str(ROOT / self.script), "--env-id", self.env_id,
                    "--seed", str(self.seed), "--exp-name", self.name, "--log-dir", str(run_dir),
-                   *self.flags]  # fmt: skip
+                   *self.flags, *(["--track"] if track else [])]  # fmt: skip
         resume_points = sorted(Path(run_dir).glob("*/resume.pt"), key=lambda p: p.stat().st_mtime)
         return command + (["--resume", str(resume_points[-1].parent)] if resume_points else [])
 
@@ -466,6 +469,12 @@ def main(args: Args) -> int:
             import ray
         except ImportError:
             return refuse(f"--backend ray needs Ray: pip install {RAY}")
+    if args.track:
+        try:
+            import wandb  # noqa: F401
+        except ImportError:
+            return refuse(f"--track needs wandb: pip install {WANDB}")
+        os.environ["WANDB_RUN_GROUP"] = args.suite  # every run's W&B group
     if not args.dry_run:  # a folder the runs cannot write in fails here, not in each worker
         try:
             suite_dir.mkdir(parents=True, exist_ok=True)
@@ -483,7 +492,7 @@ def main(args: Args) -> int:
     if args.dry_run:
         try:
             for r in todo:
-                print(" ".join(r.command(suite_dir / r.folder)))
+                print(" ".join(r.command(suite_dir / r.folder, args.track)))
             print(f"{len(todo)} to run, {skipped} already finished")
             sys.stdout.flush()
         except BrokenPipeError:  # `--dry-run | head`: the reader has what it wanted
@@ -520,12 +529,13 @@ def main(args: Args) -> int:
 
     if args.backend == "ray":
         # workers import this module from the project folder (the same path on every node)
+        group = {"WANDB_RUN_GROUP": args.suite} if args.track else {}
         ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False,
-                 runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}})  # fmt: skip
+                 runtime_env={"env_vars": {"PYTHONPATH": str(ROOT), **group}})  # fmt: skip
         sys.path.insert(0, str(ROOT))  # this module by name, as run.py's __main__ won't pickle
         remote = ray.remote(num_cpus=1)(importlib.import_module("benchmarks.run").execute)
         pending = {
-            remote.remote(r.command(suite_dir / r.folder), str(suite_dir / r.folder)): r
+            remote.remote(r.command(suite_dir / r.folder, args.track), str(suite_dir / r.folder)): r
             for r in todo
         }
         while pending:
@@ -536,7 +546,9 @@ def main(args: Args) -> int:
     else:
         with ThreadPoolExecutor(max_workers=args.workers) as pool:
             futures = {
-                pool.submit(execute, r.command(suite_dir / r.folder), str(suite_dir / r.folder)): r
+                pool.submit(
+                    execute, r.command(suite_dir / r.folder, args.track), str(suite_dir / r.folder)
+                ): r
                 for r in todo
             }
             for future in as_completed(futures):

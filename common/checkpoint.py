@@ -35,7 +35,8 @@ FORMAT_VERSION = 3  # 3: the networks' layer kinds beside their weights
 SCRIPT = os.path.basename(sys.argv[0])  # the script running, e.g. ipg_her.py
 RESUME_FILE = "resume.pt"
 # may differ on --resume: how long, how often saved, evaluation workers, the run's label
-RESUMABLE_ARGS = ("resume", "resume_freq", "total_timesteps", "eval_workers", "exp_name")
+RESUMABLE_ARGS = ("resume", "resume_freq", "total_timesteps", "eval_workers", "exp_name", "track",
+                  "wandb_project_name", "wandb_entity")  # fmt: skip
 # what every resume.pt holds besides the script's parts (common/run.py writes and reads them)
 RESUME_FIELDS = ("script", "args", "rng", "scalars", "iteration", "global_step", "train_time",
                  "last_eval", "last_save", "recent_success", "eval_seeds")  # fmt: skip

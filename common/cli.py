@@ -48,7 +48,7 @@ if (MAIN and os.path.abspath(MAIN).startswith(ROOT + os.sep)
 import numpy as np  # noqa: E402
 import tyro  # noqa: E402
 
-from common import tasks  # noqa: E402
+from common import tasks, tracking  # noqa: E402
 
 A = TypeVar("A")
 
@@ -166,6 +166,7 @@ def check_run(args) -> bool:
     ``--capture-video``'s prerequisites. Returns whether the task is a goal task."""
     check_finite(args)
     check_exp_name(args.exp_name)
+    refuse(tracking.refusal(args))
     check_positive(args, "num_envs")
     goal_task = check_task(args.env_id, args.num_envs)
     check_positive(args, "total_timesteps", "num_steps", "torch_threads", "eval_episodes")

@@ -37,7 +37,7 @@ import torch
 from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
-from common import checkpoint, cli, seeding, tasks
+from common import checkpoint, cli, seeding, tasks, tracking
 from common.background import BackgroundEvaluator
 from common.evaluate import evaluate_snapshot
 
@@ -70,6 +70,12 @@ class RunArgs:
     """write resume.pt every this many env steps and at the end (0: never), for --resume"""
     resume: str | None = None
     """go on with the run in this folder from its resume.pt (same flags; a larger budget extends)"""
+    track: bool = False
+    """also send the run to Weights & Biases (pip install wandb; WANDB_MODE=offline: no account)"""
+    wandb_project_name: str = tracking.PROJECT
+    """the W&B project of a tracked run"""
+    wandb_entity: str | None = None
+    """the W&B entity (team or user) of a tracked run (None: your default)"""
 
 
 BAR = "{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]"  # the rate: ours, in the postfix
@@ -227,6 +233,8 @@ class Run:
             self.eval_seeds, self.recent_success = r["eval_seeds"], r["recent_success"]
             self.first_iteration, self.last_resume = r["iteration"] + 1, self.global_step
             print(f"resuming run folder: {self.dir} after step {self.global_step:,}", flush=True)
+        self.tracker = tracking.start(self.args, self.dir)  # before the writer, which it syncs
+        if self.resumed:
             self.writer = writer_for(self.dir, purge_step=self.global_step + 1)
         else:  # the hyperparameters as a text table, as CleanRL does
             self.writer = writer_for(self.dir)
@@ -288,9 +296,7 @@ class Run:
         resume_due = args.resume_freq > 0 and (step - self.last_resume >= args.resume_freq or last)
         if last or (args.eval_freq > 0 and step - self.last_eval >= args.eval_freq):
             self.last_eval, self.eval_seeds = step, self.streams.eval_seeds(args.eval_episodes)
-            video_dir = (
-                os.path.join(self.dir, "videos", f"step{step}") if args.capture_video else None
-            )
+            video_dir = self.video_dir(step) if args.capture_video else None
             snapshot = checkpoint.state(self.model)
             self.evaluator.submit(
                 step, evaluate_snapshot, snapshot, args.env_id, self.eval_seeds, video_dir
@@ -307,6 +313,7 @@ class Run:
                 message += f" eval_success={success.mean():.2f}"
                 self.latest_eval = f"eval success {success.mean():.2f} @ {eval_step:,}"
             self.print(f"{message} steps/s={sps}")
+            tracking.save_videos(self.tracker, self.dir, self.video_dir(eval_step))
         if args.save_model and args.save_freq and step - self.last_save >= args.save_freq:
             self.last_save = step
             self.save()
@@ -325,6 +332,9 @@ class Run:
         if self.progress.disable and time.time() - self.last_line >= 30:  # piped: a line a while
             self.last_line = time.time()
             self.print(f"step {step:,} of {args.total_timesteps:,}: {live}")
+
+    def video_dir(self, step: int) -> str:
+        return os.path.join(self.dir, "videos", f"step{step}")
 
     def save(self) -> str:
         """``model.pt``, unless its weights are not finite: a NaN never replaces a good model."""
@@ -384,6 +394,7 @@ class Run:
             self.writer.close()
         except OSError as e:  # the event file's last lines, on a full disk
             lines.append(f"error: {disk_error(e, self.dir)}")
+        tracking.finish(self.tracker, 1 if code is None else code)
         for line in lines:
             say(line, sys.stderr if line.startswith(("error", "interrupted")) else sys.stdout)
         threading.excepthook = threading.__excepthook__
