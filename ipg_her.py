@@ -140,8 +140,6 @@ def check_args(args: Args, argv: list[str]) -> None:
     cli.check_range(args, "tau", 0.0, 1.0, open_low=True)
     cli.refuse(buffer_refusal(args.buffer_size, args.num_envs, args.env_id))
     cli.refuse(her.check(args, args.env_id, goal_task))  # and on a task without goals: HER is off
-    if tasks.task_name(args.env_id) in ("FetchPush-v4", "FetchPickAndPlace-v4", "FetchSlide-v4"):
-        print(f"{args.env_id}: the paper's IPG+HER; the recipe it needs: ipg_her_recipe.py")
 
 
 # ENV SETUP

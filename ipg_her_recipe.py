@@ -71,12 +71,10 @@ def task_defaults(env_id: str) -> dict:
 @dataclass
 class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     """IPG with HER and a recipe for the harder goal tasks (docs/ipg_her_recipe.md). A goal task
-    takes the recipe's defaults (task_defaults: the RECIPE and what follows from the task's
-    spaces), which lose on two tasks to flags of their own (held-out seeds). On FetchSlide-v4
-    they end at 0.02 at 1M, where
-    `--target-std 0.3 0.3 0.3 1 --action-l2 0 --bounds-loss 1 --anneal-lr` reached 0.82; on
-    FetchPickAndPlace-v4 at 0.68 at 500k, where `--target-std 1.0 1.0 1.0 0.3` reached 0.96.
-    Pass those flags there."""
+    takes the recipe's defaults (task_defaults), which lose on held-out seeds: FetchSlide-v4 ends
+    at 0.02 at 1M, where --target-std 0.3 0.3 0.3 1 --action-l2 0 --bounds-loss 1 --anneal-lr
+    reached 0.82; FetchPickAndPlace-v4 0.68 at 500k, where --target-std 1.0 1.0 1.0 0.3 reached
+    0.96. Pass those flags there."""
 
     env_id: str = "FetchReach-v4"
     """the id of the gymnasium environment"""
@@ -150,8 +148,7 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     # the recipe
     target_std: float | tuple[float, ...] | None = None
     """the sigma rule: hold H(pi) at H(N(0, target_std^2)) per action, or one each (None: off;
-    a goal task's: min(1, 2 / sqrt(d)) on each of its d action dimensions, which loses on
-    FetchSlide-v4 and FetchPickAndPlace-v4: pass 0.3 0.3 0.3 1 and 1.0 1.0 1.0 0.3 there)"""
+    a goal task's: min(1, 2 / sqrt(d)) on each of its d action dimensions)"""
     grasped_start: float = 0.0
     """share of training episodes started with the object in the gripper (a goal task whose
     gripper can hold its object: the HER paper's 0.5)"""
