@@ -38,6 +38,7 @@ import torch.optim as optim
 from torch.distributions import Normal, kl_divergence
 
 from common import diagnostics, her, tasks
+from common.gae import gae
 from common.grasped_start import GraspedStart, refusal
 from common.her import HerReplayBuffer, goal_task_reward, sparse_return_range
 from common.normalizer import InputNormalizer, RewardScaler
@@ -345,26 +346,17 @@ def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer,
 
 
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
-def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, gae_lambda: float):
-    """GAE advantages (eq. 4) and pi_old's statistics of a rollout ``ro``, as one flat batch.
-
-    The k-step estimates of eq. 3 bootstrap from V after k rewards; GAE, their (1 - lam)-weighted
-    average, telescopes into sum_l (gamma lam)^l delta_{t+l}, delta_t = r_t + gamma V(s_{t+1}) -
-    V(s_t): lam = 0 is the one-step estimate, lam = 1 the Monte Carlo return minus V. Where an
-    episode ended at step t the sum stops, and s_{t+1} is its true last state (``final_obs``): a
-    termination (the hopper fell) has value 0, no bootstrap; a truncation (the time limit, every
-    Fetch episode) bootstraps from V(s_{t+1}) like any other step."""
+def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, lam: float):
+    """GAE advantages (eq. 4, ``common/gae.py``) and pi_old's statistics of a rollout ``ro``, as
+    one flat batch. Where an episode ended at step t, s_{t+1} is its true last state
+    (``final_obs``): a truncation bootstraps from its value, a termination from none."""
     with torch.no_grad():
         values = agent.get_value(ro["obs"])
         next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
         ended = ro["episode_ends"].bool()
         next_values = torch.where(ended, agent.get_value(ro["final_obs"]), next_values)
-        not_terminal, goes_on = 1.0 - ro["terminations"], 1.0 - ro["episode_ends"]
-        advantages, last = torch.zeros_like(values), torch.zeros_like(values[0])  # A_{T} = 0
-        for t in reversed(range(len(values))):  # eq. 4 backwards: A_t = delta_t + gamma lam A_{t+1}
-            delta = ro["rewards"][t] + gamma * not_terminal[t] * next_values[t] - values[t]
-            last = delta + gamma * gae_lambda * goes_on[t] * last  # the sum stops at an episode end
-            advantages[t] = last
+        rewards, terminated = ro["rewards"], ro["terminations"]
+        advantages = gae(rewards, values, next_values, terminated, ended, gamma, lam)  # eq. 4
         pi_old = agent.dist(ro["obs"])
         return {"obs": ro["obs"].flatten(0, 1), "actions": ro["actions"].flatten(0, 1),
                 "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),

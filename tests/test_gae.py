@@ -1,6 +1,7 @@
-"""GAE (eq. 4), as each script computes it in ``make_batch``, against its definition: the
-explicit discounted sum of TD residuals, stopping at an episode's end, bootstrapping from the
-true last state where an episode was truncated and not where it terminated."""
+"""GAE (eq. 4), ``common/gae.py`` and each script's ``make_batch`` through it, against its
+definition: the explicit discounted sum of TD residuals, stopping at an episode's end,
+bootstrapping from the true last state where an episode was truncated and not where it
+terminated."""
 
 import pytest
 import torch
@@ -9,6 +10,7 @@ import ipg_her
 import ipg_her_recipe
 import ppo_kl
 import qprop_ppo
+from common.gae import gae
 
 SCRIPTS = [ppo_kl, qprop_ppo, ipg_her, ipg_her_recipe]
 
@@ -25,6 +27,17 @@ def explicit_gae(rewards, values, next_values, terminations, episode_ends, gamma
                 if episode_ends[t + l, i]:
                     break
     return adv
+
+
+def test_gae_is_the_explicit_sum_of_td_residuals():
+    g = torch.Generator().manual_seed(4)
+    T, N, gamma, lam = 30, 4, 0.95, 0.8
+    ends = (torch.rand(T, N, generator=g) < 0.2).float()
+    terminations = ends * (torch.rand(T, N, generator=g) < 0.5).float()
+    rewards, values, next_values = torch.randn(3, T, N, generator=g, dtype=torch.float64)
+    advantages = gae(rewards, values, next_values, terminations, ends.bool(), gamma, lam)
+    expected = explicit_gae(rewards, values, next_values, terminations, ends, gamma, lam)
+    torch.testing.assert_close(advantages, expected)
 
 
 def batch_of(script, T, N, seed, ends, terminations, gamma, lam):
