@@ -103,6 +103,8 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     """d_targ, the mean KL per update the beta rule aims for (0.1: a step size for nu = 1)"""
     beta_init: float = 1.0
     """initial KL penalty coefficient beta (the PPO paper: insensitive)"""
+    kl_early_stop: float | None = None
+    """stop an update's epochs once the mean KL exceeds this many times kl_target (None: never)"""
     init_log_std: float = 0.0
     """initial log std of the Gaussian policy (0: goals need wide exploration)"""
     vf_coef: float = 0.5
@@ -182,6 +184,8 @@ def check_args(args: Args, argv: list[str]) -> None:
     cli.check_positive(args, "num_minibatches", "update_epochs", "learning_rate", "kl_target")
     cli.check_positive(args, "vf_coef", "max_grad_norm")  # <= 0: V unlearnt, reversed or frozen
     cli.check_non_negative(args, "beta_init")
+    if args.kl_early_stop is not None:
+        cli.check_positive(args, "kl_early_stop")
     cli.check_range(args, "gamma", 0.0, 1.0, open_low=True)
     cli.check_range(args, "gae_lambda", 0.0, 1.0)
     cli.check_minibatches(args.num_envs * args.num_steps, args.num_minibatches)
@@ -466,6 +470,11 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
             nn.utils.clip_grad_norm_(actor_params, args.max_grad_norm)  # policy and
             nn.utils.clip_grad_norm_(critic_params, args.max_grad_norm)  # V apart
             optimizer.step()
+        if args.kl_early_stop is not None:
+            with torch.no_grad():
+                d = kl_divergence(pi_old, agent.dist(b["obs"])).sum(-1).mean().item()
+            if d > args.kl_early_stop * args.kl_target:
+                break
     with torch.no_grad():
         pi = agent.dist(b["obs"])
         d = kl_divergence(pi_old, pi).sum(-1).mean().item()  # d: mean KL[pi_old || pi]

@@ -84,6 +84,8 @@ def check_args(args: Args) -> None:
     cli.check_positive(args, "num_minibatches", "update_epochs", "learning_rate", "kl_target")
     cli.check_positive(args, "vf_coef", "max_grad_norm")  # <= 0: V unlearnt, reversed or frozen
     cli.check_non_negative(args, "beta_init")
+    if args.kl_early_stop is not None:
+        cli.check_positive(args, "kl_early_stop")
     cli.check_range(args, "gamma", 0.0, 1.0, open_low=True)
     cli.check_range(args, "gae_lambda", 0.0, 1.0)
     cli.check_minibatches(args.num_envs * args.num_steps, args.num_minibatches)

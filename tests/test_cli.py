@@ -97,7 +97,7 @@ UNRECOGNIZED = "unrecognized option {} (--help lists them)"
         ("qprop_ppo", ["--buffer-size", "3000"], "--buffer-size 3000 keeps 750 steps per env, "
          "less than one Hopper-v5 episode (1000 steps); enlarge it"),
         ("qprop_ppo", ["--twin-critic"], UNRECOGNIZED.format("--twin-critic")),  # the recipe's
-        ("qprop_ppo", ["--kl-early-stop", "2"], UNRECOGNIZED.format("--kl-early-stop, 2")),
+        ("qprop_ppo", ["--kl-early-stop", "0"], "--kl-early-stop must be positive, got 0.0"),
         ("ipg_her", ["--nu", "1.5"], "--nu must be in [0, 1], got 1.5"),
         ("ipg_her", ["--tau", "0"], "--tau must be in (0, 1], got 0.0"),
         ("ipg_her", ["--gae-lambda", "1.1"], "--gae-lambda must be in [0, 1], got 1.1"),
@@ -126,7 +126,9 @@ UNRECOGNIZED = "unrecognized option {} (--help lists them)"
         ("ipg_her", ["--critic-steps", "-1"], "--critic-steps must be non-negative, got -1"),
         ("ipg_her", ["--learning-starts", "-1"], "--learning-starts must be non-negative, got -1"),
         ("ipg_her", ["--target-std", "1"], UNRECOGNIZED.format("--target-std, 1")),  # the recipe's
-        ("ipg_her", ["--kl-early-stop", "2"], UNRECOGNIZED.format("--kl-early-stop, 2")),
+        ("ipg_her", ["--kl-early-stop", "-1"], "--kl-early-stop must be positive, got -1.0"),
+        ("ipg_her_recipe", ["--kl-early-stop", "0"], "--kl-early-stop must be positive, got 0.0"),
+        ("ppo_kl", ["--kl-early-stop", "0"], "--kl-early-stop must be positive, got 0.0"),
         ("ipg_her_recipe", ["--nu", "1.5"], "--nu must be in [0, 1], got 1.5"),
         ("ipg_her_recipe", ["--her-n-sampled-goal", "-1"],
          "--her-n-sampled-goal must be non-negative, got -1"),
@@ -479,7 +481,7 @@ def float_fields(args_class) -> list[str]:
 def test_every_float_flag_refuses_nan_and_inf(capsys, script, value):
     names = float_fields(SCRIPTS[script].Args)
     assert {"learning_rate", "beta_init", "kl_target"} <= set(names)
-    assert ("kl_early_stop" in names) == (script == "ppo_kl")  # PPO-KL's alone
+    assert "kl_early_stop" in names  # in all four: DPPO's early stop of the epochs
     assert ("target_std" in names) == (script == "ipg_her_recipe")  # a tuple or None
     for name in names:
         line = refused(capsys, SCRIPTS[script], cli.flag(name), value)
