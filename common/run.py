@@ -18,14 +18,13 @@ replay, reward statistics). Keyword values (``beta``) are scalars a resumed run 
 
 Evaluation runs the deterministic policy of a snapshot of ``model`` through
 ``common.evaluate.Policy``, the same code that ``python -m common.evaluate`` runs on a saved
-model, in a background process (``--eval-workers 1``) or in this one (``0``).
+model, in a background process (``--eval-workers 1``) or in this one (``0``). How a run ends
+(signals, exit codes, one-line errors) is ``common/stops.py``'s; its folder's lock
+``common/lock.py``'s.
 """
 
-import errno
-import fcntl
 import os
 import random
-import signal
 import sys
 import threading
 import time
@@ -40,6 +39,8 @@ from tqdm import tqdm
 from common import checkpoint, cli, seeding, tasks, tracking
 from common.background import BackgroundEvaluator
 from common.evaluate import evaluate_snapshot
+from common.lock import lock
+from common.stops import Stops, disk_error, ending, say
 
 
 @dataclass
@@ -79,43 +80,6 @@ class RunArgs:
 
 
 BAR = "{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]"  # the rate: ours, in the postfix
-
-
-STOPS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # Ctrl-C, kill, a closed terminal
-# write errors that stop a run in one line: a full disk, a folder made read-only
-WRITE_ERRORS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EACCES, errno.EPERM, errno.EROFS)
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (``kill``) or SIGHUP (a closed terminal), raised like Ctrl-C's KeyboardInterrupt
-    so that a run ends cleanly; ``args[0]``: the signal."""
-
-
-def raise_terminated(signum, frame) -> NoReturn:
-    """The first SIGTERM or SIGHUP stops the run; later ones are ignored, so they cannot cut its
-    clean-up short (kill -9 on benchmarks/run.py can send two: one per runner thread that
-    dies)."""
-    for s in STOPS[1:]:
-        signal.signal(s, signal.SIG_IGN)
-    raise Terminated(signum)
-
-
-def lock(run_dir: str):
-    """Hold ``run_dir/run.lock`` (with this pid) while the run lives: a second run of the same
-    folder (two ``--resume`` at once) is refused. The kernel frees it when the process dies."""
-    path = os.path.join(run_dir, "run.lock")
-    try:
-        handle = open(path, "a+")
-        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        handle.seek(0)
-        cli.fail(f"{run_dir} is in use by a running process (pid {handle.read().strip() or '?'})")
-    except OSError as e:
-        cli.fail(f"cannot write in {run_dir}: {e.strerror}")
-    handle.truncate(0)
-    handle.write(f"{os.getpid()}\n")
-    handle.flush()
-    return handle
 
 
 def writer_for(run_dir: str, **kwargs) -> SummaryWriter:
@@ -158,18 +122,19 @@ def start_run(args) -> str:
 
 class Run:
     def __init__(self, args):
-        self.args, self.resumed, self.stop_signal = args, None, None
+        self.args, self.resumed = args, None
         if args.resume:  # TensorBoard drops what the interrupted run logged after its resume point
             try:
                 self.resumed = checkpoint.load_resume_state(args.resume, args)
             except checkpoint.CheckpointError as e:
                 cli.fail(str(e))
             self.dir, self.lock = args.resume, lock(args.resume)
-            self.hold_signals()
+            self.stops = Stops()  # from the moment the run folder is ours
         else:
-            self.hold_signals()
+            self.stops = Stops()  # from the moment the run folder exists
             self.dir = start_run(args)
             self.lock = lock(self.dir)
+        threading.excepthook = quiet_writer_thread  # until __exit__
         batch, steps = args.num_envs * args.num_steps, args.total_timesteps
         if steps % batch:  # training runs in whole batches
             print(f"--total-timesteps {steps:,}: {steps // batch * batch:,} steps, whole batches "
@@ -188,15 +153,6 @@ class Run:
         self.recent_success, self.latest, self.latest_eval, self.scalars = [], "", "no eval yet", {}
         self.first_iteration, self.last_resume, self.start_time = 1, 0, time.time()
         self.model_step, self.last_line = None, time.time()  # model.pt's step, once written
-
-    def hold_signals(self) -> None:
-        """From the moment the run folder exists until the run is under way (``with run:``), a
-        signal is held, then stops the run as mid-run: one clean stop, whenever it comes."""
-        self.old_handlers = {s: signal.signal(s, self.hold) for s in STOPS}
-        threading.excepthook = quiet_writer_thread
-
-    def hold(self, signum, frame) -> None:
-        self.stop_signal = signum
 
     def start(self, envs, model: dict, training: dict, **scalars):
         """Register what is saved, restore it all on ``--resume`` (the environments too, mid-
@@ -350,13 +306,10 @@ class Run:
         say(message, file or sys.stdout, self.progress)
 
     def __enter__(self):
-        signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C and kill end the run
-        for s in STOPS[1:]:  # cleanly from here on, through __exit__
-            signal.signal(s, raise_terminated)
-        if self.stop_signal is not None:  # held since the run folder appeared: stop as mid-run
-            stop = self.stop_signal
-            error = KeyboardInterrupt() if stop == signal.SIGINT else Terminated(stop)
-            self.__exit__(type(error), error, None)
+        # Ctrl-C and kill end the run cleanly from here on, through __exit__; a signal held since
+        # the run folder appeared stops it now, as mid-run
+        if (held := self.stops.raise_from_now()) is not None:
+            self.__exit__(type(held), held, None)
         return self
 
     def __exit__(self, kind, error, traceback) -> NoReturn:
@@ -365,20 +318,10 @@ class Run:
         (``--save-model``, if finite), everything is closed, and the last line names the
         checkpoints on disk. Further signals stay ignored until the process has exited, so that
         its exit's own clean-up (multiprocessing's temporary folder) runs to its end."""
-        for s in STOPS:  # a second Ctrl-C cannot cut the clean-up short, nor the exit after it
-            signal.signal(s, signal.SIG_IGN)
+        self.stops.ignore()  # a second Ctrl-C cannot cut the clean-up short
         self.progress.close()  # the bar stays above the closing lines
         self.progress.disable = True
-        code, lines = (0 if error is None else None), []  # None: a bug, traceback after cleanup
-        if isinstance(error, KeyboardInterrupt):
-            lines.append(f"interrupted at step {self.global_step:,}; logs are kept in {self.dir}")
-            code = 128 + (error.args[0] if isinstance(error, Terminated) else signal.SIGINT)
-        elif isinstance(error, FloatingPointError):
-            lines.append(f"error: {error}")
-            code = 1
-        elif isinstance(error, OSError) and error.errno in WRITE_ERRORS:
-            lines.append(f"error: {disk_error(error, self.dir)}")
-            code = 1
+        code, lines = ending(error, self.global_step, self.dir)  # None: a bug (traceback)
         if self.args.save_model and not isinstance(error, FloatingPointError):
             try:
                 lines.append(f"model saved to {self.save()}")
@@ -400,8 +343,7 @@ class Run:
         threading.excepthook = threading.__excepthook__
         self.lock.close()
         if code is None:
-            for s, handler in self.old_handlers.items():  # a bug: its traceback, as usual
-                signal.signal(s, handler)
+            self.stops.restore()
             return False
         seconds = time.time() - self.start_time
         summary = f"{'stopped' if code else 'done'}: {self.global_step:,} steps in {seconds:.0f} s"
@@ -420,25 +362,3 @@ class Run:
         if self.model_step is not None:
             saved.append(f"model.pt of step {self.model_step:,} in {self.dir}")
         return "; " + "; ".join(saved) if saved else ""
-
-
-def disk_error(error: Exception, run_dir: str) -> str:
-    """One line for a failed write: which file, and why (the disk is full, ...)."""
-    if not isinstance(error, OSError):
-        return str(error)
-    name = error.filename or f"a file in {run_dir}"
-    full = " (the disk is full)" if error.errno in (errno.ENOSPC, errno.EDQUOT) else ""
-    return f"could not write {name}: {error.strerror or error}{full}"
-
-
-def say(message: str, file, progress=None) -> None:
-    """Print a line (above the live bar if one is drawn); a closed pipe (Ctrl-C on
-    ``... | tee log`` ends ``tee`` too) sends the rest of the output to /dev/null instead of
-    stopping the clean-up."""
-    try:
-        if progress is not None and not progress.disable:
-            tqdm.write(message, file=file)
-        else:
-            print(message, file=file, flush=True)
-    except OSError:
-        os.dup2(os.open(os.devnull, os.O_WRONLY), file.fileno())

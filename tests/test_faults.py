@@ -18,7 +18,7 @@ import pytest
 import torch
 from conftest import ROOT, assert_clean_error, run_dirs, run_script, scalars
 
-from common import checkpoint, evaluate, run
+from common import checkpoint, evaluate, stops
 
 TINY = ("--env-id", "FetchReach-v4", "--total-timesteps", "200", "--eval-freq", "0",
         "--eval-episodes", "2")  # fmt: skip
@@ -135,9 +135,9 @@ def test_a_signal_right_after_the_run_folder_is_a_clean_stop(tmp_path, sig, code
 
 def test_a_second_sigterm_cannot_cut_the_clean_up_short():
     """kill -9 on benchmarks/run.py can send its running script SIGTERM twice."""
-    before = signal.signal(signal.SIGTERM, run.raise_terminated)
+    before = signal.signal(signal.SIGTERM, stops.raise_terminated)
     try:
-        with pytest.raises(run.Terminated):
+        with pytest.raises(stops.Terminated):
             os.kill(os.getpid(), signal.SIGTERM)
             time.sleep(1)  # the handler runs here
         assert signal.getsignal(signal.SIGTERM) == signal.SIG_IGN
@@ -248,7 +248,7 @@ def test_a_failed_write_keeps_the_old_file_and_removes_its_temporary(monkeypatch
     assert failed.value.errno == errno.ENOSPC and failed.value.filename == str(path)
     assert os.listdir(tmp_path) == ["resume.pt"]
     assert checkpoint._read(str(path))["x"] == 1
-    from common.run import disk_error
+    from common.stops import disk_error
 
     assert disk_error(failed.value, str(tmp_path)).endswith("(the disk is full)")
 
