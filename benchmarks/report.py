@@ -39,8 +39,8 @@ import numpy as np  # noqa: E402
 import tyro  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from benchmarks.run import SUITES, Report  # noqa: E402  each suite's settings, beside its runs
 from benchmarks.run import running as live_pid  # noqa: E402
+from benchmarks.suites import SUITES, Report  # noqa: E402  each suite's settings, beside its runs
 
 DIAGNOSTICS = ("ipg/effective_nu", "ipg/grad_var", "ipg/grad_var_cv", "ipg/corr_adv_cv",
                "qprop/grad_var", "qprop/grad_var_cv", "qprop/corr_adv_cv")  # fmt: skip

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from conftest import scalars
 
-from benchmarks import report, run
+from benchmarks import report, run, suites
 from common import cli
 
 
 def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path, capsys):
     args = run.Args(suite="quick", out_dir=str(tmp_path / "runs"), workers=2)
     assert run.main(args) == 0
-    runs = run.suite_runs("quick")
+    runs = suites.suite_runs("quick")
     for r in runs:
         folder = tmp_path / "runs" / "quick" / r.folder
         assert (folder / "exit_code").read_text().strip() == "0"
@@ -59,8 +59,8 @@ def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path
 
 
 def test_a_failing_run_is_reported_and_the_others_finish(tmp_path, monkeypatch, capsys):
-    good = run.suite_runs("quick")[2]  # FetchReach PPO-KL, a few seconds
-    bad = run.Run("broken", "ppo_kl.py", "NoSuchEnv-v0", 1)
+    good = suites.suite_runs("quick")[2]  # FetchReach PPO-KL, a few seconds
+    bad = suites.Run("broken", "ppo_kl.py", "NoSuchEnv-v0", 1)
     monkeypatch.setattr(run, "suite_runs", lambda *args: [bad, good])
     assert run.main(run.Args(suite="quick", out_dir=str(tmp_path), workers=2)) == 1
     out = capsys.readouterr().out
@@ -73,7 +73,7 @@ def test_quick_suite_on_a_local_ray_instance(tmp_path):
     pytest.importorskip("ray")
     args = run.Args(suite="quick", out_dir=str(tmp_path), backend="ray", only="FetchReach")
     assert run.main(args) == 0
-    runs = [r for r in run.suite_runs("quick") if "FetchReach" in r.folder]
+    runs = [r for r in suites.suite_runs("quick") if "FetchReach" in r.folder]
     for r in runs:
         assert (tmp_path / "quick" / r.folder / "exit_code").read_text().strip() == "0"
         assert any(p.is_dir() for p in (tmp_path / "quick" / r.folder).iterdir()), "no event folder"
@@ -109,9 +109,9 @@ def test_the_goals_suite_runs_the_recipes_defaults_then_with_no_flag_but_the_bud
     test_the_fetch_and_goals_suites_still_run_what_ran). The exceptions are named, each beside its
     task's defaults: PointMaze with the discount it lacked, HandReach with a narrower sigma
     target (summed and one rule per joint)."""
-    runs = run.suite_runs("goals")
+    runs = suites.suite_runs("goals")
     flag = re.compile(r"(--\S+) ([^-\s]\S*(?: [^-\s]\S*)*)")  # a flag and its values
-    then = (run.SUMMED, ("--gamma", "0.98"))
+    then = (suites.SUMMED, ("--gamma", "0.98"))
     budgets = {(r.name, r.env_id, r.seed): dict(flag.findall(" ".join(without(r.flags, *then))))
                for r in runs if r.script == "ipg_her_recipe.py"}  # fmt: skip
     assert len(budgets) == len(runs) == 18
@@ -135,7 +135,7 @@ def test_the_one_recipe_suite_runs_every_goal_task_with_no_flag_but_the_budget()
     """The defaults as task_defaults derives them, on seeds that chose nothing (401-403): each
     goal task at its budget, evaluated every 10,000 steps on 50 episodes, resumable, no other
     flag."""
-    runs = run.suite_runs("one_recipe")
+    runs = suites.suite_runs("one_recipe")
     budgets = {"FetchPush-v4": 300_000, "FetchPickAndPlace-v4": 500_000, "FetchSlide-v4": 10**6,
                "HandReach-v3": 300_000, "PointMaze_Medium-v3": 300_000,
                "HandManipulateBlockRotateZ-v1": 10**6}  # fmt: skip
@@ -144,7 +144,7 @@ def test_the_one_recipe_suite_runs_every_goal_task_with_no_flag_but_the_budget()
     )
     for r in runs:
         assert r.script == "ipg_her_recipe.py" and r.name == f"ipg_her_{budgets[r.env_id] // 1000}k"
-        assert r.flags == ("--total-timesteps", str(budgets[r.env_id]), *run.FETCH_EVERY)
+        assert r.flags == ("--total-timesteps", str(budgets[r.env_id]), *suites.FETCH_EVERY)
 
 
 def test_the_fetch_and_goals_suites_still_run_what_ran():
@@ -162,7 +162,7 @@ def test_the_fetch_and_goals_suites_still_run_what_ran():
         "FetchSlide-v4": recipe_then | dict(target_std=(0.3, 0.3, 0.3, 1.0), action_l2=0.0,
                                             bounds_loss=1.0, anneal_lr=True),
     }  # fmt: skip
-    runs = run.suite_runs("fetch") + run.suite_runs("goals")
+    runs = suites.suite_runs("fetch") + suites.suite_runs("goals")
     assert len(runs) == 67
     for r in runs:
         argv = ["--env-id", r.env_id, *r.flags]
@@ -183,12 +183,12 @@ def test_the_fetch_suite_runs_the_recipe_with_no_flag_but_the_budget_and_evaluat
     earlier single sigma rule (``--target-std 1.0``): with grasped starts on the fresh seeds
     (``_grasped``), without them on the seeds they were tuned on (``_nograsp``, with and without
     twin), and Slide with Push's defaults on the seeds its own were tuned on (``_sigma1``)."""
-    runs = run.suite_runs("fetch")
+    runs = suites.suite_runs("fetch")
     budgets = {}
     for r in runs:
         assert r.script == "ipg_her_recipe.py"
-        then = {"FetchPush-v4": (run.SUMMED,), "FetchPickAndPlace-v4": (run.PICK_ROW,),
-                "FetchSlide-v4": (run.SLIDE_ROW, ("--anneal-lr",))}[r.env_id]  # fmt: skip
+        then = {"FetchPush-v4": (suites.SUMMED,), "FetchPickAndPlace-v4": (suites.PICK_ROW,),
+                "FetchSlide-v4": (suites.SLIDE_ROW, ("--anneal-lr",))}[r.env_id]  # fmt: skip
         r_flags = (
             r.flags if "_grasped" in r.name or "_nograsp" in r.name else without(r.flags, *then)
         )
@@ -248,7 +248,7 @@ def test_the_hopper_suite_runs_both_ends_on_fresh_seeds_and_nu_1_to_1m_on_a_seed
     beside them); nu 1 to 1M on seed 7 alone, with the 300k rows' flags but the budget; ``--seeds``
     moves all of them."""
     seeds = {}
-    for r in run.suite_runs("hopper"):
+    for r in suites.suite_runs("hopper"):
         seeds.setdefault(r.name, []).append(r.seed)
     assert seeds == {"ppo_kl_300k": [4, 5, 6, *range(8, 20)],
                      "ipg_td3_nu1.0_300k": [4, 5, 6, *range(14, 20)],
@@ -257,7 +257,7 @@ def test_the_hopper_suite_runs_both_ends_on_fresh_seeds_and_nu_1_to_1m_on_a_seed
                      "ipg_td3_narrow_nu1.0_300k": [8, 9, 10],
                      "ipg_td3_paper_nu1.0_300k": [11, 12, 13],
                      "ipg_td3_nu1.0_1M": [7]}  # fmt: skip
-    flags = {r.name: list(r.flags) for r in run.suite_runs("hopper")}
+    flags = {r.name: list(r.flags) for r in suites.suite_runs("hopper")}
     short, long = flags["ipg_td3_nu1.0_300k"], flags["ipg_td3_nu1.0_1M"]
     assert flags["ipg_td3_bounds_nu1.0_300k"] == [*short, "--bounds-loss", "1.0"]
     narrow = [*short, "--kl-target", "0.9", "--bounds-loss", "1.0"]
@@ -267,9 +267,9 @@ def test_the_hopper_suite_runs_both_ends_on_fresh_seeds_and_nu_1_to_1m_on_a_seed
     for f in (short, long):  # the budget is the only pair that differs
         del f[f.index("--total-timesteps") : f.index("--total-timesteps") + 2]
     assert short == long and "--resume-freq" in long
-    moved = run.suite_runs("hopper", seeds=(9, 10))
+    moved = suites.suite_runs("hopper", seeds=(9, 10))
     assert {r.seed for r in moved} == {9, 10} and len(moved) == len(set(moved))
-    assert [r.seed for r in run.suite_runs("hopper", seeds=(9, 10)) if "1M" in r.name] == [9]
+    assert [r.seed for r in suites.suite_runs("hopper", seeds=(9, 10)) if "1M" in r.name] == [9]
 
 
 def test_every_suite_command_passes_its_scripts_checks(monkeypatch):
@@ -286,11 +286,11 @@ def test_every_suite_command_passes_its_scripts_checks(monkeypatch):
     scripts = {"ppo_kl.py": ppo_kl, "qprop_ppo.py": qprop_ppo, "ipg_her.py": ipg_her,
                "ipg_her_recipe.py": ipg_her_recipe}  # fmt: skip
     monkeypatch.setattr(tasks.gym, "make", functools.cache(tasks.gym.make))  # spaces only: one each
-    suites = run.Args.__annotations__["suite"].__args__
-    assert sorted(suites) == sorted(run.SUITES)
+    names = run.Args.__annotations__["suite"].__args__
+    assert sorted(names) == sorted(suites.SUITES)
     refused = []
-    for suite in suites:
-        for r in run.suite_runs(suite):
+    for suite in names:
+        for r in suites.suite_runs(suite):
             module = scripts[r.script]
             argv = ["--env-id", r.env_id, "--seed", str(r.seed), *r.flags]
             kwargs = {}  # the recipe parses as its main does: its tasks' own defaults

@@ -19,7 +19,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from benchmarks import report  # noqa: E402
-from benchmarks.run import SUITES as RUNS  # noqa: E402
+from benchmarks.suites import SUITES as RUNS  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 SUITES = sorted(path.parent.name for path in RESULTS.glob("*/curves.json"))
