@@ -18,7 +18,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks import report  # noqa: E402
+from benchmarks import report, stats  # noqa: E402
 from benchmarks.suites import SUITES as RUNS  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
@@ -150,8 +150,8 @@ def side_by_side() -> tuple[float, float]:
 
 
 def every_seed_at(suite: str, group: str, level: float) -> str:
-    """The step by which every seed had evaluated at ``level`` or more (report.first_eval_at)."""
-    steps = [report.first_eval_at(run, level)[0] for run in curves(suite)[group].values()]
+    """The step by which every seed had evaluated at ``level`` or more (stats.first_eval_at)."""
+    steps = [stats.first_eval_at(run, level)[0] for run in curves(suite)[group].values()]
     assert np.isfinite(steps).all(), (suite, group, steps)
     return f"{max(steps):,.0f}"
 

@@ -15,7 +15,7 @@ import pytest
 from conftest import ROOT, assert_clean_error
 from torch.utils.tensorboard import SummaryWriter
 
-from benchmarks import report
+from benchmarks import report, stats
 
 WINDOW = 5
 
@@ -57,10 +57,10 @@ def test_steps_to_threshold_uses_full_windows_and_counts_unreached_seeds(tmp_pat
     assert groups["2"]["reach"] == 500
     assert np.isnan(groups["3"]["reach"])
     reach = np.array([groups[s]["reach"] for s in "123"])
-    assert report.median_steps(reach) == 500  # median of (500, 500, never)
-    assert report.median_steps(np.array([500.0, np.nan, np.nan])) == np.inf
-    assert report.median_steps(np.array([500.0, 700.0, np.nan, np.nan])) == np.inf
-    assert report.median_steps(np.array([500.0, 700.0, 900.0, np.nan])) == 800
+    assert stats.median_steps(reach) == 500  # median of (500, 500, never)
+    assert stats.median_steps(np.array([500.0, np.nan, np.nan])) == np.inf
+    assert stats.median_steps(np.array([500.0, 700.0, np.nan, np.nan])) == np.inf
+    assert stats.median_steps(np.array([500.0, 700.0, 900.0, np.nan])) == 800
 
 
 def test_partial_windows_never_count(tmp_path):
@@ -111,9 +111,9 @@ def test_bootstrap_band_against_the_exact_bootstrap_distribution():
     """Seeds 0, 3, 6: resampled means are whole numbers; P(mean = 0) = P(mean = 6) = 1/27 > 2.5%,
     so the 95% band of the mean is exactly [0, 6]; identical seeds give a band of zero width."""
     rng = np.random.default_rng(0)
-    lo, hi = report.bootstrap_band(np.array([[0.0], [3.0], [6.0]]), rng)
+    lo, hi = stats.bootstrap_band(np.array([[0.0], [3.0], [6.0]]), rng)
     assert lo[0] == 0.0 and hi[0] == 6.0
-    lo, hi = report.bootstrap_band(np.full((5, 3), 2.0), rng)
+    lo, hi = stats.bootstrap_band(np.full((5, 3), 2.0), rng)
     np.testing.assert_array_equal(lo, 2.0)
     np.testing.assert_array_equal(hi, 2.0)
 
@@ -292,9 +292,9 @@ def test_reach_table_gives_steps_and_training_hours_per_seed(tmp_path):
     groups["ipg_her__FetchPush-v4"]["2"]["unfinished_at"] = 1500
     run = groups["ipg_her__FetchPush-v4"]["1"]
     run["charts/SPS"] = [[500, 250], [1000, 1000], [1500, 500]]
-    assert report.first_eval_at(run, 0.5) == (1000, 1.0)
-    assert report.first_eval_at(run, 0.9) == (1500, 3.0)
-    assert np.isnan(report.first_eval_at(run, 0.95)[0])
+    assert stats.first_eval_at(run, 0.5) == (1000, 1.0)
+    assert stats.first_eval_at(run, 0.9) == (1500, 3.0)
+    assert np.isnan(stats.first_eval_at(run, 0.95)[0])
     row = report.reach_table(groups, (0.5, 0.9)).splitlines()[2]
     # seed 2 and 3 log SPS 1000 at step 1,500: 1.5 s = 0.0 h
     assert row.split(" | ")[2:] == ["1,000 (0.0) / 1,500 (0.0) / never", "1,500",
@@ -333,8 +333,8 @@ def test_early_evaluation_is_labelled_with_the_step_it_was_at():
     row = report.finalists_table(groups, np.random.default_rng(0), 11).splitlines()[2]
     assert row.split(" | ")[3].startswith("@ 81,920: 600 ["), row
     runs = [run(20_480, 1.0), run(25_000, 1.0)]
-    assert report.steps_at(runs, "eval/episodic_return", 100_000) == "81,920-100,000"
-    assert report.steps_at(runs, "eval/episodic_return", 10_000) == "-"
+    assert stats.steps_at(runs, "eval/episodic_return", 100_000) == "81,920-100,000"
+    assert stats.steps_at(runs, "eval/episodic_return", 10_000) == "-"
 
 
 def test_fetch_suite_report_draws_each_task_with_its_anchor_and_three_reach_levels(tmp_path):
@@ -393,10 +393,10 @@ def test_iqm_interval_against_the_exact_bootstrap_distribution():
     exactly [lowest, highest]; the mean's needs all four, P = 1/256, so its interval lies
     strictly inside. Five seeds: the IQM (middle three) is neither the median nor the mean."""
     values = np.array([6.0, 8.0, 10.0, 100.0])
-    assert report.bootstrap_interval(values, report.iqm, np.random.default_rng(0)) == (9.0, 6, 100)
-    _, lo, hi = report.bootstrap_interval(values, np.mean, np.random.default_rng(0))
+    assert stats.bootstrap_interval(values, stats.iqm, np.random.default_rng(0)) == (9.0, 6, 100)
+    _, lo, hi = stats.bootstrap_interval(values, np.mean, np.random.default_rng(0))
     assert 6 < lo and hi < 100
-    point, lo, hi = report.bootstrap_interval([7.0], report.iqm, np.random.default_rng(0))
+    point, lo, hi = stats.bootstrap_interval([7.0], stats.iqm, np.random.default_rng(0))
     assert point == 7.0 and np.isnan(lo) and np.isnan(hi)  # one seed: no interval
     finals = [0.0, 100.0, 500.0, 600.0, 10000.0]
     groups = {"algo__Hopper-v5": {str(s): {"eval/episodic_return": [[1000, v]]}
@@ -423,7 +423,7 @@ def test_time_to_threshold_is_each_seeds_step_over_the_sps_it_logged_there():
         "3": {"eval/success_rate": [[1000, 0.1], [2000, 0.1], [3000, 0.1]],  # never
               "charts/SPS": [[1000, 10], [2000, 10], [3000, 10]]},
     }}  # fmt: skip
-    assert report.first_eval_at(groups["ipg_her__FetchPush-v4"]["1"], 0.5) == (2000, 40.0)
+    assert stats.first_eval_at(groups["ipg_her__FetchPush-v4"]["1"], 0.5) == (2000, 40.0)
     lines = report.task_tables(groups, {}, 0).splitlines()
     assert lines[0] == "**FetchPush-v4** (levels: evaluation success 0.5 / 0.7 / 0.9; " \
         "no anchor recorded for this task)"  # fmt: skip
@@ -570,9 +570,9 @@ def test_every_goal_task_is_reported_by_its_success():
     """The goals suite's tasks, like Fetch's: evaluation success at 0.5 / 0.7 / 0.9."""
     for env_id in ("FetchPush-v4", "HandReach-v3", "HandManipulateBlockRotateZ-v1",
                    "PointMaze_Medium-v3"):  # fmt: skip
-        assert report.task_levels(env_id) == report.GOAL_LEVELS
-        assert report.THRESHOLDS[env_id][0] == "eval/success_rate"
-    assert report.task_levels("Hopper-v5")[0] == "eval/episodic_return"
+        assert stats.task_levels(env_id) == stats.GOAL_LEVELS
+        assert stats.THRESHOLDS[env_id][0] == "eval/success_rate"
+    assert stats.task_levels("Hopper-v5")[0] == "eval/episodic_return"
 
 
 def test_the_paired_comparison_matches_its_definition():
