@@ -226,22 +226,22 @@ def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, rb, update_norm: 
     T, N, act_dim = num_steps, envs.num_envs, envs.single_action_space.shape[0]
     low, high = envs.single_action_space.low, envs.single_action_space.high
     obs_dim = norm(raw_obs).shape[-1]  # the policy's input
-    ro = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
+    traj = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
           "actions": torch.zeros((T, N, act_dim)), "rewards": torch.zeros((T, N)),
           "terminations": torch.zeros((T, N)), "episode_ends": torch.zeros((T, N))}  # fmt: skip
     episodes = []
     for t in range(T):
         if update_norm:
             norm.update(raw_obs)
-        ro["obs"][t] = norm(raw_obs)
+        traj["obs"][t] = norm(raw_obs)
         with torch.no_grad():
-            ro["actions"][t] = agent.dist(ro["obs"][t]).sample()  # a_t ~ pi_theta(.|s_t)
-        executed = np.clip(ro["actions"][t].numpy(), low, high)  # the env's action bounds
+            traj["actions"][t] = agent.dist(traj["obs"][t]).sample()  # a_t ~ pi_theta(.|s_t)
+        executed = np.clip(traj["actions"][t].numpy(), low, high)  # the env's action bounds
         next_raw_obs, reward, terminated, truncated, infos = envs.step(executed)
         ended = terminated | truncated
-        ro["rewards"][t] = torch.as_tensor(reward)
-        ro["terminations"][t] = torch.as_tensor(terminated)
-        ro["episode_ends"][t] = torch.as_tensor(ended)
+        traj["rewards"][t] = torch.as_tensor(reward)
+        traj["terminations"][t] = torch.as_tensor(terminated)
+        traj["episode_ends"][t] = torch.as_tensor(ended)
         real_next_obs = copy.deepcopy(next_raw_obs) if ended.any() else next_raw_obs
         for i in np.flatnonzero(ended):  # next_raw_obs[i] is the next episode's first
             final = infos["final_obs"][i]  # its true last state
@@ -250,14 +250,14 @@ def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, rb, update_norm: 
                     real_next_obs[key][i] = final[key]
             else:
                 real_next_obs[i] = final
-            ro["final_obs"][t, i] = norm(final)
+            traj["final_obs"][t, i] = norm(final)
             info = infos["final_info"]
             success = next((float(info[k][i]) for k in SUCCESS_KEYS if k in info), None)
             episodes.append((t, i, float(info["episode"]["r"][i]), int(info["episode"]["l"][i]),
                              success))  # fmt: skip
         rb.add(raw_obs, executed, reward, real_next_obs, terminated, truncated)
         raw_obs = next_raw_obs
-    return ro, raw_obs, episodes
+    return traj, raw_obs, episodes
 
 
 # ALGO LOGIC: the critic step: DDPG's TD learning, eq. 6's soft target update
@@ -280,20 +280,20 @@ def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer,
 
 
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
-def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, lam: float):
-    """GAE advantages (eq. 4, ``common/gae.py``) and pi_old's statistics of a rollout ``ro``, as
+def make_batch(agent: Agent, traj: dict, last_obs: torch.Tensor, gamma: float, lam: float):
+    """GAE advantages (eq. 4, ``common/gae.py``) and pi_old's statistics of a rollout ``traj``, as
     one flat batch. Where an episode ended at step t, s_{t+1} is its true last state
     (``final_obs``): a truncation bootstraps from its value, a termination from none."""
     with torch.no_grad():
-        values = agent.get_value(ro["obs"])
+        values = agent.get_value(traj["obs"])
         next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
-        ended = ro["episode_ends"].bool()
-        next_values = torch.where(ended, agent.get_value(ro["final_obs"]), next_values)
-        rewards, terminated = ro["rewards"], ro["terminations"]
+        ended = traj["episode_ends"].bool()
+        next_values = torch.where(ended, agent.get_value(traj["final_obs"]), next_values)
+        rewards, terminated = traj["rewards"], traj["terminations"]
         advantages = gae(rewards, values, next_values, terminated, ended, gamma, lam)  # eq. 4
-        pi_old = agent.dist(ro["obs"])
-        return {"obs": ro["obs"].flatten(0, 1), "actions": ro["actions"].flatten(0, 1),
-                "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),
+        pi_old = agent.dist(traj["obs"])
+        return {"obs": traj["obs"].flatten(0, 1), "actions": traj["actions"].flatten(0, 1),
+                "logprobs": pi_old.log_prob(traj["actions"]).sum(-1).flatten(),
                 "mean": pi_old.mean.flatten(0, 1), "std": pi_old.stddev.flatten(0, 1),
                 "advantages": advantages.flatten(),
                 "returns": (advantages + values).flatten()}  # fmt: skip
@@ -323,9 +323,10 @@ def ipg_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, adv=None, s_off=N
     return on_term, off_term
 
 
-def learning_signal(b: dict, args: Args):
+def learning_signal(batch: dict, args: Args):
     """The update's weights: the signal, normalised; its raw std; the critic term's b and scale."""
-    adv = b["advantages"] - b["cv"] if "cv" in b else b["advantages"]  # A_hat (- A_bar)
+    adv = batch["advantages"]  # A_hat
+    adv = adv - batch["cv"] if "cv" in batch else adv  # minus A_bar with the control variate
     off_scale, signal_std = 1.0, adv.std()  # on the raw scale
     if args.norm_adv:
         adv = (adv - adv.mean()) / (signal_std + 1e-8)
@@ -335,21 +336,21 @@ def learning_signal(b: dict, args: Args):
 
 
 # DIAGNOSTICS: the mixture, measured on the batch before the update
-def interpolation_report(agent: Agent, qf: QNetwork, b: dict, args: Args, replay, run,
+def interpolation_report(agent: Agent, qf: QNetwork, batch: dict, args: Args, replay, run,
                          chunks: int = 4) -> dict:  # fmt: skip
-    """The update's two weighted terms on its batch ``b`` at theta = theta_old, through its own
+    """The update's two weighted terms on ``batch`` at theta = theta_old, through its own
     ``learning_signal`` and ``ipg_loss``: their gradient norms (1 - nu) |g_on| and b |g_off|, and
     ``effective_nu`` = |off| / (|on| + |off|), the share the off-policy term really has; then
     the control variate's variance (eq. 8 at eta = 0 and 1, ``common/diagnostics.py``). The
     off-policy states: the batch's, or one draw of ``replay``; random draws from ``run``'s
     diagnostics streams, so that measuring never moves the training's."""
     generator = run.diagnostics_generator
-    cv = b["cv"] if args.use_cv else control_variate(qf, agent, b["obs"], b["actions"])
-    off_states = b["obs"] if args.off_policy_states == "batch" else replay(
+    cv = batch["cv"] if args.use_cv else control_variate(qf, agent, batch["obs"], batch["actions"])
+    off_states = batch["obs"] if args.off_policy_states == "batch" else replay(
         1, run.diagnostics_rng)[0]["obs"]  # fmt: skip
     params = agent.actor_parameters()
-    signal, _, off_weight, off_scale = learning_signal(b, args)  # the update's own
-    on_term, off_term = ipg_loss(agent, qf, agent.dist(b["obs"]), b, signal, off_states,
+    signal, _, off_weight, off_scale = learning_signal(batch, args)  # the update's own
+    on_term, off_term = ipg_loss(agent, qf, agent.dist(batch["obs"]), batch, signal, off_states,
                                  args.q_bar, generator)  # fmt: skip
     on = (1.0 - args.nu) * diagnostics.flat_grad(on_term, params).norm().item()
     off = off_weight * diagnostics.flat_grad(off_term * off_scale, params).norm().item()
@@ -361,25 +362,25 @@ def interpolation_report(agent: Agent, qf: QNetwork, b: dict, args: Args, replay
         return on_term + off_term
 
     measured = {"on_grad_norm": on, "off_grad_norm": off, "effective_nu": off / (on + off + 1e-12)}
-    return measured | diagnostics.variance_report(agent, b, cv, estimate, chunks, generator)
+    return measured | diagnostics.variance_report(agent, batch, cv, estimate, chunks, generator)
 
 
 # ALGO LOGIC: the IPG update (eq. 10) on the PPO-KL surrogate (eq. 5)
-def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args,
+def ipg_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: float, args: Args,
                qf: QNetwork | None = None, replay=None):  # fmt: skip
     """Eq. 10 inside eq. 5: ``update_epochs`` passes of Adam, then the beta rule."""
-    batch_size = b["obs"].shape[0]
+    batch_size = batch["obs"].shape[0]
     minibatch_size = batch_size // args.num_minibatches
-    adv, signal_std, off_weight, off_scale = learning_signal(b, args)
+    adv, signal_std, off_weight, off_scale = learning_signal(batch, args)
     use_off_policy = qf is not None and off_weight > 0
     from_replay = use_off_policy and args.off_policy_states == "replay"
     replayed = iter(replay(args.update_epochs * args.num_minibatches) if from_replay else ())
-    pi_old = Normal(b["mean"], b["std"])
+    pi_old = Normal(batch["mean"], batch["std"])
     actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
     for epoch in range(args.update_epochs):
         perm = torch.randperm(batch_size)  # once per epoch: the minibatches are then views
         keys = ("obs", "actions", "logprobs", "mean", "std", "returns")
-        shuffled = {key: b[key][perm] for key in keys} | {"adv": adv[perm]}
+        shuffled = {key: batch[key][perm] for key in keys} | {"adv": adv[perm]}
         for start in range(0, batch_size, minibatch_size):
             mb = {key: v[start : start + minibatch_size] for key, v in shuffled.items()}
             pi = agent.dist(mb["obs"])
@@ -396,11 +397,11 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, a
             optimizer.step()
         if args.kl_early_stop is not None:
             with torch.no_grad():
-                d = kl_divergence(pi_old, agent.dist(b["obs"])).sum(-1).mean().item()
+                d = kl_divergence(pi_old, agent.dist(batch["obs"])).sum(-1).mean().item()
             if d > args.kl_early_stop * args.kl_target:
                 break
     with torch.no_grad():
-        pi = agent.dist(b["obs"])
+        pi = agent.dist(batch["obs"])
         d = kl_divergence(pi_old, pi).sum(-1).mean().item()  # d: mean KL[pi_old || pi]
         entropy = pi.entropy().sum(-1).mean().item()
     stats = {"losses/policy_loss": pg_loss.item(), "losses/value_loss": v_loss.item(),
@@ -461,21 +462,21 @@ if __name__ == "__main__":
                 optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
             # ALGO LOGIC: rollout
-            ro, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
+            traj, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
                                             update_norm=args.norm_obs)  # fmt: skip
             global_step = run.record_episodes(episodes)
 
             # ALGO LOGIC: one reward scale for GAE and the critic
             reward_scale = 1.0
             if args.norm_reward:
-                ro["rewards"] = reward_scaler(ro["rewards"], ro["episode_ends"])
+                traj["rewards"] = reward_scaler(traj["rewards"], traj["episode_ends"])
                 reward_scale = 1.0 / reward_scaler.std()
 
             # ALGO LOGIC: the critic first (eq. 6; Q-Prop's Algorithm 1), so that the control
             # variate and the critic's term see the new data; at nu = 0 without them, no critic
-            learning = (args.nu > 0 or args.use_cv) and global_step >= args.learning_starts
-            learning = learning and rb.num_sampleable() > 0
-            if learning and args.critic_steps > 0:
+            critic_ready = (args.nu > 0 or args.use_cv) and global_step >= args.learning_starts
+            critic_ready = critic_ready and rb.num_sampleable() > 0
+            if critic_ready and args.critic_steps > 0:
                 target_range = (q_range[0] * reward_scale, 0.0) if q_range else None  # clipped
                 for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size,
                                           args.critic_steps):  # fmt: skip
@@ -484,17 +485,17 @@ if __name__ == "__main__":
                 run.log({"losses/critic_loss": q_loss, "losses/q_values": q_mean})
 
             # ALGO LOGIC: advantages (eq. 3-4) and the control variate (eq. 9)
-            b = make_batch(agent, ro, norm(raw_obs), args.gamma, args.gae_lambda)
-            if args.use_cv and learning:  # with the critic and the term that offsets it (eq. 8)
-                b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
-                run.log({"ipg/cv_mean": b["cv"].mean().item()})
+            batch = make_batch(agent, traj, norm(raw_obs), args.gamma, args.gae_lambda)
+            if args.use_cv and critic_ready:  # with the critic and the term that offsets it (eq. 8)
+                batch["cv"] = control_variate(qf, agent, batch["obs"], batch["actions"])
+                run.log({"ipg/cv_mean": batch["cv"].mean().item()})
             diagnose = args.diagnostics_every and (iteration - 1) % args.diagnostics_every == 0
-            if learning and diagnose:  # DIAGNOSTICS: the mixture, before the update (ipg/*)
-                measured = interpolation_report(agent, qf, b, args, replay, run)
+            if critic_ready and diagnose:  # DIAGNOSTICS: the mixture, before the update (ipg/*)
+                measured = interpolation_report(agent, qf, batch, args, replay, run)
                 run.log({f"ipg/{key}": value for key, value in measured.items()})
 
             # ALGO LOGIC: the IPG update (eq. 10 on eq. 5)
-            beta, stats = ipg_update(agent, optimizer, b, beta, args, qf if learning else None,
-                                     replay)  # fmt: skip
+            critic = qf if critic_ready else None
+            beta, stats = ipg_update(agent, optimizer, batch, beta, args, critic, replay)
             stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}
             run.end_iteration(stats, beta=beta)  # TRY NOT TO MODIFY: log, evaluate, save

@@ -151,67 +151,67 @@ def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, update_norm: bool
     T, N, act_dim = num_steps, envs.num_envs, envs.single_action_space.shape[0]
     low, high = envs.single_action_space.low, envs.single_action_space.high
     obs_dim = norm(raw_obs).shape[-1]  # the policy's input
-    ro = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
+    traj = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
           "actions": torch.zeros((T, N, act_dim)), "rewards": torch.zeros((T, N)),
           "terminations": torch.zeros((T, N)), "episode_ends": torch.zeros((T, N))}  # fmt: skip
     episodes = []
     for t in range(T):
         if update_norm:
             norm.update(raw_obs)
-        ro["obs"][t] = norm(raw_obs)
+        traj["obs"][t] = norm(raw_obs)
         with torch.no_grad():
-            ro["actions"][t] = agent.dist(ro["obs"][t]).sample()  # a_t ~ pi_theta(.|s_t)
-        executed = np.clip(ro["actions"][t].numpy(), low, high)  # the env's action bounds
+            traj["actions"][t] = agent.dist(traj["obs"][t]).sample()  # a_t ~ pi_theta(.|s_t)
+        executed = np.clip(traj["actions"][t].numpy(), low, high)  # the env's action bounds
         next_raw_obs, reward, terminated, truncated, infos = envs.step(executed)
         ended = terminated | truncated
-        ro["rewards"][t] = torch.as_tensor(reward)
-        ro["terminations"][t] = torch.as_tensor(terminated)
-        ro["episode_ends"][t] = torch.as_tensor(ended)
+        traj["rewards"][t] = torch.as_tensor(reward)
+        traj["terminations"][t] = torch.as_tensor(terminated)
+        traj["episode_ends"][t] = torch.as_tensor(ended)
         for i in np.flatnonzero(ended):  # next_raw_obs[i] is the next episode's first
-            ro["final_obs"][t, i] = norm(infos["final_obs"][i])
+            traj["final_obs"][t, i] = norm(infos["final_obs"][i])
             info = infos["final_info"]
             success = next((float(info[k][i]) for k in SUCCESS_KEYS if k in info), None)
             episodes.append((t, i, float(info["episode"]["r"][i]), int(info["episode"]["l"][i]),
                              success))  # fmt: skip
         raw_obs = next_raw_obs
-    return ro, raw_obs, episodes
+    return traj, raw_obs, episodes
 
 
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
-def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, lam: float):
-    """GAE advantages (eq. 4, ``common/gae.py``) and pi_old's statistics of a rollout ``ro``, as
+def make_batch(agent: Agent, traj: dict, last_obs: torch.Tensor, gamma: float, lam: float):
+    """GAE advantages (eq. 4, ``common/gae.py``) and pi_old's statistics of a rollout ``traj``, as
     one flat batch. Where an episode ended at step t, s_{t+1} is its true last state
     (``final_obs``): a truncation bootstraps from its value, a termination from none."""
     with torch.no_grad():
-        values = agent.get_value(ro["obs"])
+        values = agent.get_value(traj["obs"])
         next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
-        ended = ro["episode_ends"].bool()
-        next_values = torch.where(ended, agent.get_value(ro["final_obs"]), next_values)
-        rewards, terminated = ro["rewards"], ro["terminations"]
+        ended = traj["episode_ends"].bool()
+        next_values = torch.where(ended, agent.get_value(traj["final_obs"]), next_values)
+        rewards, terminated = traj["rewards"], traj["terminations"]
         advantages = gae(rewards, values, next_values, terminated, ended, gamma, lam)  # eq. 4
-        pi_old = agent.dist(ro["obs"])
-        return {"obs": ro["obs"].flatten(0, 1), "actions": ro["actions"].flatten(0, 1),
-                "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),
+        pi_old = agent.dist(traj["obs"])
+        return {"obs": traj["obs"].flatten(0, 1), "actions": traj["actions"].flatten(0, 1),
+                "logprobs": pi_old.log_prob(traj["actions"]).sum(-1).flatten(),
                 "mean": pi_old.mean.flatten(0, 1), "std": pi_old.stddev.flatten(0, 1),
                 "advantages": advantages.flatten(),
                 "returns": (advantages + values).flatten()}  # fmt: skip
 
 
 # ALGO LOGIC: the PPO-KL update (eq. 5)
-def ppo_kl_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args):
-    """``update_epochs`` passes of minibatch Adam on eq. 5 over ``make_batch``'s batch ``b``, then
+def ppo_kl_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: float, args: Args):
+    """``update_epochs`` passes of minibatch Adam on eq. 5 over ``make_batch``'s ``batch``, then
     the beta rule. Returns the new beta and the statistics to log."""
-    batch_size = b["obs"].shape[0]
+    batch_size = batch["obs"].shape[0]
     minibatch_size = batch_size // args.num_minibatches
-    adv = b["advantages"]
+    adv = batch["advantages"]
     if args.norm_adv:
         adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-    pi_old = Normal(b["mean"], b["std"])
+    pi_old = Normal(batch["mean"], batch["std"])
     actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
     for epoch in range(args.update_epochs):
         perm = torch.randperm(batch_size)  # once per epoch: the minibatches are then views
         keys = ("obs", "actions", "logprobs", "mean", "std", "returns")
-        shuffled = {key: b[key][perm] for key in keys} | {"adv": adv[perm]}
+        shuffled = {key: batch[key][perm] for key in keys} | {"adv": adv[perm]}
         for start in range(0, batch_size, minibatch_size):
             mb = {key: v[start : start + minibatch_size] for key, v in shuffled.items()}
             pi = agent.dist(mb["obs"])
@@ -226,11 +226,11 @@ def ppo_kl_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float
             optimizer.step()
         if args.kl_early_stop is not None:
             with torch.no_grad():
-                d = kl_divergence(pi_old, agent.dist(b["obs"])).sum(-1).mean().item()
+                d = kl_divergence(pi_old, agent.dist(batch["obs"])).sum(-1).mean().item()
             if d > args.kl_early_stop * args.kl_target:
                 break
     with torch.no_grad():
-        pi = agent.dist(b["obs"])
+        pi = agent.dist(batch["obs"])
         d = kl_divergence(pi_old, pi).sum(-1).mean().item()  # d: mean KL[pi_old || pi]
         entropy = pi.entropy().sum(-1).mean().item()
     stats = {"losses/policy_loss": pg_loss.item(), "losses/value_loss": v_loss.item(),
@@ -274,16 +274,16 @@ if __name__ == "__main__":
                 optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
             # ALGO LOGIC: rollout
-            ro, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps,
+            traj, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps,
                                             update_norm=args.norm_obs)  # fmt: skip
             global_step = run.record_episodes(episodes)
 
             # ALGO LOGIC: advantages (eq. 3-4) on scaled rewards
             if args.norm_reward:
-                ro["rewards"] = reward_scaler(ro["rewards"], ro["episode_ends"])
-            b = make_batch(agent, ro, norm(raw_obs), args.gamma, args.gae_lambda)
+                traj["rewards"] = reward_scaler(traj["rewards"], traj["episode_ends"])
+            batch = make_batch(agent, traj, norm(raw_obs), args.gamma, args.gae_lambda)
 
             # ALGO LOGIC: the PPO-KL update (eq. 5)
-            beta, stats = ppo_kl_update(agent, optimizer, b, beta, args)
+            beta, stats = ppo_kl_update(agent, optimizer, batch, beta, args)
             stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}
             run.end_iteration(stats, beta=beta)  # TRY NOT TO MODIFY: log, evaluate, save

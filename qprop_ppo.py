@@ -214,33 +214,33 @@ def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, rb, update_norm: 
     T, N, act_dim = num_steps, envs.num_envs, envs.single_action_space.shape[0]
     low, high = envs.single_action_space.low, envs.single_action_space.high
     obs_dim = norm(raw_obs).shape[-1]  # the policy's input
-    ro = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
+    traj = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
           "actions": torch.zeros((T, N, act_dim)), "rewards": torch.zeros((T, N)),
           "terminations": torch.zeros((T, N)), "episode_ends": torch.zeros((T, N))}  # fmt: skip
     episodes = []
     for t in range(T):
         if update_norm:
             norm.update(raw_obs)
-        ro["obs"][t] = norm(raw_obs)
+        traj["obs"][t] = norm(raw_obs)
         with torch.no_grad():
-            ro["actions"][t] = agent.dist(ro["obs"][t]).sample()  # a_t ~ pi_theta(.|s_t)
-        executed = np.clip(ro["actions"][t].numpy(), low, high)  # the env's action bounds
+            traj["actions"][t] = agent.dist(traj["obs"][t]).sample()  # a_t ~ pi_theta(.|s_t)
+        executed = np.clip(traj["actions"][t].numpy(), low, high)  # the env's action bounds
         next_raw_obs, reward, terminated, truncated, infos = envs.step(executed)
         ended = terminated | truncated
-        ro["rewards"][t] = torch.as_tensor(reward)
-        ro["terminations"][t] = torch.as_tensor(terminated)
-        ro["episode_ends"][t] = torch.as_tensor(ended)
+        traj["rewards"][t] = torch.as_tensor(reward)
+        traj["terminations"][t] = torch.as_tensor(terminated)
+        traj["episode_ends"][t] = torch.as_tensor(ended)
         real_next_obs = next_raw_obs.copy()  # where an episode ended: its true last state
         for i in np.flatnonzero(ended):  # next_raw_obs[i] is the next episode's first
             real_next_obs[i] = infos["final_obs"][i]
-            ro["final_obs"][t, i] = norm(infos["final_obs"][i])
+            traj["final_obs"][t, i] = norm(infos["final_obs"][i])
             info = infos["final_info"]
             success = next((float(info[k][i]) for k in SUCCESS_KEYS if k in info), None)
             episodes.append((t, i, float(info["episode"]["r"][i]), int(info["episode"]["l"][i]),
                              success))  # fmt: skip
         rb.add(raw_obs, executed, reward, real_next_obs, terminated, truncated)
         raw_obs = next_raw_obs
-    return ro, raw_obs, episodes
+    return traj, raw_obs, episodes
 
 
 # ALGO LOGIC: the critic step: DDPG's TD learning, eq. 6's soft target update
@@ -262,20 +262,20 @@ def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer,
 
 
 # ALGO LOGIC: advantages by GAE (eq. 3-4), bootstrapping through truncation
-def make_batch(agent: Agent, ro: dict, last_obs: torch.Tensor, gamma: float, lam: float):
-    """GAE advantages (eq. 4, ``common/gae.py``) and pi_old's statistics of a rollout ``ro``, as
+def make_batch(agent: Agent, traj: dict, last_obs: torch.Tensor, gamma: float, lam: float):
+    """GAE advantages (eq. 4, ``common/gae.py``) and pi_old's statistics of a rollout ``traj``, as
     one flat batch. Where an episode ended at step t, s_{t+1} is its true last state
     (``final_obs``): a truncation bootstraps from its value, a termination from none."""
     with torch.no_grad():
-        values = agent.get_value(ro["obs"])
+        values = agent.get_value(traj["obs"])
         next_values = torch.cat([values[1:], agent.get_value(last_obs)[None]])
-        ended = ro["episode_ends"].bool()
-        next_values = torch.where(ended, agent.get_value(ro["final_obs"]), next_values)
-        rewards, terminated = ro["rewards"], ro["terminations"]
+        ended = traj["episode_ends"].bool()
+        next_values = torch.where(ended, agent.get_value(traj["final_obs"]), next_values)
+        rewards, terminated = traj["rewards"], traj["terminations"]
         advantages = gae(rewards, values, next_values, terminated, ended, gamma, lam)  # eq. 4
-        pi_old = agent.dist(ro["obs"])
-        return {"obs": ro["obs"].flatten(0, 1), "actions": ro["actions"].flatten(0, 1),
-                "logprobs": pi_old.log_prob(ro["actions"]).sum(-1).flatten(),
+        pi_old = agent.dist(traj["obs"])
+        return {"obs": traj["obs"].flatten(0, 1), "actions": traj["actions"].flatten(0, 1),
+                "logprobs": pi_old.log_prob(traj["actions"]).sum(-1).flatten(),
                 "mean": pi_old.mean.flatten(0, 1), "std": pi_old.stddev.flatten(0, 1),
                 "advantages": advantages.flatten(),
                 "returns": (advantages + values).flatten()}  # fmt: skip
@@ -319,11 +319,12 @@ def qprop_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, analytic_scale:
     return loss
 
 
-def learning_signal(b: dict, args: Args):
+def learning_signal(batch: dict, args: Args):
     """The update's weights: the learning signal, normalised, its raw std sigma, and the critic's
     term's weights: eta (the signal is A_hat - eta A_bar) and its scale (``normalization``)."""
-    eta = b["eta"] if "eta" in b else torch.zeros_like(b["advantages"])
-    adv = b["advantages"] - eta * b["cv"] if "cv" in b else b["advantages"]  # A_hat - eta A_bar
+    eta = batch["eta"] if "eta" in batch else torch.zeros_like(batch["advantages"])
+    adv = batch["advantages"]  # A_hat
+    adv = adv - eta * batch["cv"] if "cv" in batch else adv  # A_hat - eta A_bar
     analytic_scale, signal_std = 1.0, adv.std()  # on the raw scale
     if args.norm_adv:
         adv = (adv - adv.mean()) / (signal_std + 1e-8)
@@ -333,8 +334,8 @@ def learning_signal(b: dict, args: Args):
 
 
 # DIAGNOSTICS: does the control variate reduce variance? Measured before the update
-def qprop_report(agent: Agent, qf: QNetwork, b: dict, generator=None, chunks: int = 8) -> dict:
-    """Q-Prop's claim on the batch ``b`` (with ``cv`` = A_bar) at theta = theta_old: the gradient
+def qprop_report(agent: Agent, qf: QNetwork, batch: dict, generator=None, chunks: int = 8) -> dict:
+    """Q-Prop's claim on ``batch`` (with ``cv`` = A_bar) at theta = theta_old: the gradient
     variances of ``qprop_loss`` at eta = 0 and eta = 1 (eq. 8: the same expectation), over
     ``chunks`` chunks of the batch (``common/diagnostics.py``); random draws from ``generator``."""
 
@@ -343,24 +344,25 @@ def qprop_report(agent: Agent, qf: QNetwork, b: dict, generator=None, chunks: in
         mb |= {"adv": mb["advantages"] - eta * mb["cv"], "eta": eta}
         return qprop_loss(agent, qf, agent.dist(mb["obs"]), mb)
 
-    return diagnostics.variance_report(agent, b, b["cv"], estimate, chunks, generator)
+    return diagnostics.variance_report(agent, batch, batch["cv"], estimate, chunks, generator)
 
 
 # ALGO LOGIC: the Q-Prop update: PPO-KL (eq. 5) with the control variate (eq. 8)
-def qprop_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float, args: Args,
+def qprop_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: float, args: Args,
                  qf: QNetwork | None = None):  # fmt: skip
-    """``update_epochs`` passes of minibatch Adam on eq. 8 inside eq. 5 over ``make_batch``'s batch
-    ``b`` (with ``cv`` = A_bar and ``eta`` once the critic learns), then the beta rule. Without a
-    critic, or with eta = 0, this is ``ppo_kl_update``. Returns the new beta and the statistics."""
-    batch_size = b["obs"].shape[0]
+    """``update_epochs`` passes of minibatch Adam on eq. 8 inside eq. 5 over ``make_batch``'s
+    ``batch`` (with ``cv`` = A_bar and ``eta`` once the critic learns), then the beta rule.
+    Without a critic, or with eta = 0, this is ``ppo_kl_update``. Returns the new beta and the
+    statistics."""
+    batch_size = batch["obs"].shape[0]
     minibatch_size = batch_size // args.num_minibatches
-    adv, signal_std, eta, analytic_scale = learning_signal(b, args)
-    pi_old = Normal(b["mean"], b["std"])
+    adv, signal_std, eta, analytic_scale = learning_signal(batch, args)
+    pi_old = Normal(batch["mean"], batch["std"])
     actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
     for epoch in range(args.update_epochs):
         perm = torch.randperm(batch_size)  # once per epoch: the minibatches are then views
         keys = ("obs", "actions", "logprobs", "mean", "std", "returns")
-        shuffled = {key: b[key][perm] for key in keys} | {"adv": adv[perm], "eta": eta[perm]}
+        shuffled = {key: batch[key][perm] for key in keys} | {"adv": adv[perm], "eta": eta[perm]}
         for start in range(0, batch_size, minibatch_size):
             mb = {key: v[start : start + minibatch_size] for key, v in shuffled.items()}
             pi = agent.dist(mb["obs"])
@@ -375,11 +377,11 @@ def qprop_update(agent: Agent, optimizer: optim.Optimizer, b: dict, beta: float,
             optimizer.step()
         if args.kl_early_stop is not None:
             with torch.no_grad():
-                d = kl_divergence(pi_old, agent.dist(b["obs"])).sum(-1).mean().item()
+                d = kl_divergence(pi_old, agent.dist(batch["obs"])).sum(-1).mean().item()
             if d > args.kl_early_stop * args.kl_target:
                 break
     with torch.no_grad():
-        pi = agent.dist(b["obs"])
+        pi = agent.dist(batch["obs"])
         d = kl_divergence(pi_old, pi).sum(-1).mean().item()  # d: mean KL[pi_old || pi]
         entropy = pi.entropy().sum(-1).mean().item()
     stats = {"losses/policy_loss": pg_loss.item(), "losses/value_loss": v_loss.item(),
@@ -428,21 +430,21 @@ if __name__ == "__main__":
                 optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
             # ALGO LOGIC: rollout
-            ro, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
+            traj, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
                                             update_norm=args.norm_obs)  # fmt: skip
             global_step = run.record_episodes(episodes)
 
             # ALGO LOGIC: one reward scale for GAE and the critic
             reward_scale = 1.0
             if args.norm_reward:
-                ro["rewards"] = reward_scaler(ro["rewards"], ro["episode_ends"])
+                traj["rewards"] = reward_scaler(traj["rewards"], traj["episode_ends"])
                 reward_scale = 1.0 / reward_scaler.std()
 
             # ALGO LOGIC: the critic first (eq. 6; Q-Prop's Algorithm 1), so that the control
             # variate and the critic's term in the update see the new data
-            learning = args.eta_mode != "none" and global_step >= args.learning_starts
-            learning = learning and rb.num_sampleable() > 0
-            if learning and args.critic_steps > 0:
+            critic_ready = args.eta_mode != "none" and global_step >= args.learning_starts
+            critic_ready = critic_ready and rb.num_sampleable() > 0
+            if critic_ready and args.critic_steps > 0:
                 for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size,
                                           args.critic_steps):  # fmt: skip
                     q_loss, q_mean = critic_step(qf, qf_target, q_optimizer, agent, data,
@@ -450,17 +452,18 @@ if __name__ == "__main__":
                 run.log({"losses/critic_loss": q_loss, "losses/q_values": q_mean})
 
             # ALGO LOGIC: advantages (eq. 3-4), the control variate (eq. 9) and eta
-            b = make_batch(agent, ro, norm(raw_obs), args.gamma, args.gae_lambda)
-            if learning:
-                b["cv"] = control_variate(qf, agent, b["obs"], b["actions"])
-                b["eta"] = compute_eta(b["advantages"], b["cv"], args.eta_mode)
-                cov = batch_covariance(b["advantages"], b["cv"])
+            batch = make_batch(agent, traj, norm(raw_obs), args.gamma, args.gae_lambda)
+            if critic_ready:
+                batch["cv"] = control_variate(qf, agent, batch["obs"], batch["actions"])
+                batch["eta"] = compute_eta(batch["advantages"], batch["cv"], args.eta_mode)
+                cov = batch_covariance(batch["advantages"], batch["cv"])
                 # DIAGNOSTICS: does the control variate reduce variance? (qprop/*; own streams)
-                measured = qprop_report(agent, qf, b, run.diagnostics_generator)
-                measured |= {"eta": b["eta"].mean().item(), "cov": cov}
+                measured = qprop_report(agent, qf, batch, run.diagnostics_generator)
+                measured |= {"eta": batch["eta"].mean().item(), "cov": cov}
                 run.log({f"qprop/{key}": value for key, value in measured.items()})
 
             # ALGO LOGIC: the Q-Prop update (eq. 8 inside eq. 5)
-            beta, stats = qprop_update(agent, optimizer, b, beta, args, qf if learning else None)
+            critic = qf if critic_ready else None
+            beta, stats = qprop_update(agent, optimizer, batch, beta, args, critic)
             stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}
             run.end_iteration(stats, beta=beta)  # TRY NOT TO MODIFY: log, evaluate, save
