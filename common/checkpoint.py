@@ -17,7 +17,6 @@ previous file intact.
 """
 
 import contextlib
-import copy
 import dataclasses
 import io
 import os
@@ -197,104 +196,6 @@ def restore(target, saved) -> None:
         target.bit_generator.state = saved
     else:
         target.load_state_dict(saved)
-
-
-class EnvsState:
-    """A vector env's state as plain values, so that a resumed run goes on mid-episode where it
-    stopped, as if never stopped: per env, each layer's (the wrappers' and the task's) numbers,
-    arrays (and dicts of arrays) and random generators, a MuJoCo task's physics
-    (``mjSTATE_INTEGRATION``), and the vector env's last observations. What a task keeps in
-    other containers (a list) is not saved."""
-
-    def __init__(self, envs):
-        self.envs = envs
-
-    def state_dict(self) -> dict:
-        layers = [[_layer_state(layer) for layer in _layers(env)] for env in self.envs.envs]
-        return {"layers": layers, "observations": copy.deepcopy(self.envs._observations)}
-
-    def load_state_dict(self, state: dict) -> None:
-        for env, saved in zip(self.envs.envs, state["layers"], strict=True):
-            for layer, values in zip(_layers(env), saved, strict=True):
-                for name, value in values.items():
-                    _restore_value(layer, name, value)
-        self.envs._observations = state["observations"]
-
-    def observations(self):
-        """The observations the envs stopped in, as a step returns them."""
-        return copy.deepcopy(self.envs._observations)
-
-
-def _layers(env) -> list:
-    """An env's wrappers, outermost first, then the task itself."""
-    layers = [env]
-    while hasattr(layers[-1], "env"):
-        layers.append(layers[-1].env)
-    return layers
-
-
-def _layer_state(layer) -> dict:
-    state = {}
-    for name, value in vars(layer).items():
-        if isinstance(value, np.random.Generator):
-            state[name] = {"generator": value.bit_generator.state}
-        elif type(value).__name__ == "MjData":
-            state[name] = {"mujoco": _physics(layer.model, value)}
-        elif isinstance(value, bool | int | float | np.ndarray | np.generic | None) or (
-            isinstance(value, dict)
-            and value
-            and all(isinstance(v, np.ndarray) for v in value.values())
-        ):  # a dict of arrays: a recorded state (common/grasped_start.py)
-            state[name] = copy.deepcopy(value)
-    return state
-
-
-def _restore_value(layer, name: str, value) -> None:
-    if isinstance(value, dict) and value.keys() == {"generator"}:
-        generator = getattr(layer, name, None) or np.random.default_rng()
-        generator.bit_generator.state = value["generator"]
-        setattr(layer, name, generator)
-    elif isinstance(value, dict) and value.keys() == {"mujoco"}:
-        _restore_physics(layer.model, getattr(layer, name), value["mujoco"])
-    else:
-        setattr(layer, name, value)
-
-
-# what a MuJoCo step leaves computed (positions, orientations, velocities, forces), which a task
-# may read before its next step (the Fetch tasks' mocap reads the gripper's body position)
-COMPUTED = ("xpos", "xquat", "xmat", "xipos", "ximat", "xanchor", "xaxis", "geom_xpos",
-            "geom_xmat", "site_xpos", "site_xmat", "cam_xpos", "cam_xmat", "light_xpos",
-            "light_xdir", "subtree_com", "cdof", "cinert", "cvel", "cdof_dot", "cacc", "cfrc_int",
-            "cfrc_ext", "sensordata", "actuator_length", "actuator_velocity", "actuator_force",
-            "ten_length", "ten_velocity", "qfrc_actuator", "qfrc_bias", "qfrc_passive",
-            "qfrc_constraint", "qacc", "energy")  # fmt: skip
-
-
-def _physics(model, data) -> dict:
-    """MuJoCo's state (``mjSTATE_INTEGRATION``) and, in one array, what the last step computed
-    from it (``COMPUTED``)."""
-    import mujoco
-
-    spec = mujoco.mjtState.mjSTATE_INTEGRATION
-    state = np.empty(mujoco.mj_stateSize(model, spec))
-    mujoco.mj_getState(model, data, state, spec)
-    computed = [np.ravel(getattr(data, name)) for name in COMPUTED if hasattr(data, name)]
-    return {"state": state, "computed": np.concatenate(computed)}
-
-
-def _restore_physics(model, data, saved: dict) -> None:
-    import mujoco
-
-    mujoco.mj_setState(model, data, saved["state"], mujoco.mjtState.mjSTATE_INTEGRATION)
-    mujoco.mj_forward(model, data)  # what COMPUTED leaves out, then COMPUTED as it was
-    start = 0
-    for name in (name for name in COMPUTED if hasattr(data, name)):
-        array = getattr(data, name)
-        array.flat[:] = saved["computed"][start : start + array.size]
-        start += array.size
-    if start != len(saved["computed"]):
-        raise ValueError(f"the saved physics holds {len(saved['computed'])} computed values, "
-                         f"this task {start}")  # fmt: skip
 
 
 def load(path: str) -> dict:

@@ -38,6 +38,7 @@ from tqdm import tqdm
 
 from common import checkpoint, cli, seeding, tasks, tracking
 from common.background import BackgroundEvaluator
+from common.envs_state import EnvsState
 from common.evaluate import evaluate_snapshot
 from common.lock import lock
 from common.stops import Stops, disk_error, ending, say
@@ -162,7 +163,7 @@ class Run:
         streams = dict(eval_rng=self.streams.eval_rng, diagnostics_rng=self.diagnostics_rng,
                        diagnostics_generator=self.diagnostics_generator)  # fmt: skip
         self.parts = model | training | streams
-        self.envs_state = checkpoint.EnvsState(envs)
+        self.envs_state = EnvsState(envs)
         raw_obs = None
         if self.resumed:
             r, path = self.resumed, os.path.join(self.dir, checkpoint.RESUME_FILE)

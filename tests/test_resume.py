@@ -63,6 +63,7 @@ def test_environments_restored_in_a_new_process_go_on_as_the_originals(env_id, g
     import torch
 
     from common import checkpoint, tasks
+    from common.envs_state import EnvsState
 
     tasks.register_goal_tasks()
     envs = vector_env(env_id, grasped)
@@ -74,11 +75,11 @@ def test_environments_restored_in_a_new_process_go_on_as_the_originals(env_id, g
     for action in actions[:5]:  # mid-episode
         envs.step(action)
     buffer = torch.serialization.io.BytesIO()
-    torch.save(checkpoint.plain(checkpoint.EnvsState(envs).state_dict()), buffer)
+    torch.save(checkpoint.plain(EnvsState(envs).state_dict()), buffer)
     buffer.seek(0)
     saved = checkpoint.unplain(torch.load(buffer, weights_only=True))
     fresh = vector_env(env_id, grasped)
-    checkpoint.EnvsState(fresh).load_state_dict(saved)
+    EnvsState(fresh).load_state_dict(saved)
     for action in actions[5:]:  # past the ends of 50-step episodes, through their resets
         a, b = envs.step(action), fresh.step(action)
         for x, y in zip(a[:4], b[:4], strict=True):
@@ -86,3 +87,36 @@ def test_environments_restored_in_a_new_process_go_on_as_the_originals(env_id, g
                 np.concatenate([np.ravel(v) for v in x.values()]) if isinstance(x, dict) else x,
                 np.concatenate([np.ravel(v) for v in y.values()]) if isinstance(y, dict) else y,
             )
+
+
+def flat(observations):
+    import numpy as np
+
+    if isinstance(observations, dict):  # a goal task's
+        return np.concatenate([np.ravel(v) for v in observations.values()])
+    return observations
+
+
+@pytest.mark.parametrize("env_id", ["Hopper-v5", "tests.point_goal:PointGoal-v0"])
+def test_the_vector_envs_private_observations_are_its_last_ones(env_id):
+    """gymnasium has no public API for a vector env's last observations, from which a resumed run
+    goes on: common/envs_state.py reads and sets ``SyncVectorEnv._observations``. It must be what
+    ``reset`` and every ``step`` returned, through episode ends (Hopper falls, PointGoal's
+    episodes are cut at 50 steps); a gymnasium that renames it or keeps other values there fails
+    here, not in a resumed run."""
+    import numpy as np
+
+    from common import tasks
+    from common.envs_state import EnvsState
+
+    tasks.register_goal_tasks()
+    envs = vector_env(env_id)
+    returned, _ = envs.reset(seed=[3, 4])
+    np.testing.assert_array_equal(flat(envs._observations), flat(returned))
+    ends = 0
+    for _ in range(60):
+        returned, _, terminated, truncated, _ = envs.step(envs.action_space.sample())
+        np.testing.assert_array_equal(flat(envs._observations), flat(returned))
+        ends += int(np.sum(terminated | truncated))
+    assert ends > 0  # the autoreset's observations too
+    np.testing.assert_array_equal(flat(EnvsState(envs).observations()), flat(returned))
