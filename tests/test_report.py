@@ -15,7 +15,7 @@ import pytest
 from conftest import ROOT, assert_clean_error
 from torch.utils.tensorboard import SummaryWriter
 
-from benchmarks import report, stats
+from benchmarks import events, report, stats, suites
 
 WINDOW = 5
 
@@ -52,7 +52,7 @@ def test_steps_to_threshold_uses_full_windows_and_counts_unreached_seeds(tmp_pat
     write_run(runs, "algo", "Hopper-v5", 1, [20000] + [100] * 9 + [2500] * 10)
     write_run(runs, "algo", "Hopper-v5", 2, [2100] * 20)  # full window first at episode 5
     write_run(runs, "algo", "Hopper-v5", 3, [500] * 20)  # never
-    groups = report.collect(runs, WINDOW)["algo__Hopper-v5"]
+    groups = events.collect(runs, WINDOW)["algo__Hopper-v5"]
     assert groups["1"]["reach"] == 500
     assert groups["2"]["reach"] == 500
     assert np.isnan(groups["3"]["reach"])
@@ -66,7 +66,7 @@ def test_steps_to_threshold_uses_full_windows_and_counts_unreached_seeds(tmp_pat
 def test_partial_windows_never_count(tmp_path):
     runs = tmp_path / "runs" / "test"
     write_run(runs, "algo", "Hopper-v5", 1, [3000, 3000, 3000, 0, 0, 0, 0, 0])  # 3 big, then 0
-    (run,) = report.collect(runs, WINDOW)["algo__Hopper-v5"].values()
+    (run,) = events.collect(runs, WINDOW)["algo__Hopper-v5"].values()
     assert np.isnan(run["reach"])  # the only windows of 5 average 1800 and less
 
 
@@ -75,7 +75,7 @@ def test_table_statistics_equal_hand_computed_values(tmp_path):
     finals = {1: 1000.0, 2: 2000.0, 3: 3000.0, 4: 10000.0}
     for seed, level in finals.items():
         write_run(runs, "algo", "Hopper-v5", seed, [0.0] * 5 + [level] * WINDOW)
-    groups = report.collect(runs, WINDOW)
+    groups = events.collect(runs, WINDOW)
     row = next(r for r in report.table(groups, WINDOW).splitlines() if "Hopper-v5" in r)
     cells = [c.strip() for c in row.strip("|").split("|")]
     values = np.array(list(finals.values()))
@@ -103,7 +103,7 @@ def test_a_resumed_run_reads_each_step_once_with_the_resumed_attempts_values(tmp
             writer.close()
             (new,) = [p for p in run_dir.iterdir() if ".host." not in p.name]
             new.rename(run_dir / f"events.out.tfevents.1700000000.host.{pid}.0")
-        assert report.read_run(run_dir)["charts/episodic_return"] == (
+        assert events.read_run(run_dir)["charts/episodic_return"] == (
             [[s, s] for s in range(1, 6)] + [[s, 100 + s] for s in range(6, 13)])  # fmt: skip
 
 
@@ -240,9 +240,9 @@ def test_unfinished_runs_are_left_out_or_marked_with_the_step_they_reached(tmp_p
     assert "| IPG+HER ‡ | 2 |" in text and "ipg_her seed 2 at 1,000" in text  # not seed 3
     assert "(1/2 seeds; 1 not yet, still running)" in text  # seed 1 reached 0.9, seed 2 not yet
     write_run(runs, "short", "FetchReach-v4", 1, [-50] * 3, [0.0, 0.4], total=1000)
-    push = report.SUITES["push"]
+    push = suites.SUITES["push"]
     budgets = dataclasses.replace(push.report, budgets=(500, 1000, 1500))
-    monkeypatch.setitem(report.SUITES, "push", push._replace(report=budgets))
+    monkeypatch.setitem(suites.SUITES, "push", push._replace(report=budgets))
     short = next(line for line in results(include_unfinished=True).splitlines()
                  if line.startswith("| FetchReach-v4 | short | 0"))  # fmt: skip
     assert short.split(" | ")[2:] == ["0.00 [0.00, 0.00]", "0.40 [0.40, 0.40]", "- |"]
@@ -288,7 +288,7 @@ def test_reach_table_gives_steps_and_training_hours_per_seed(tmp_path):
     write_run(runs, "ipg_her", "FetchPush-v4", 1, [-50] * 15, [0.0, 0.6, 0.9])
     write_run(runs, "ipg_her", "FetchPush-v4", 2, [-50] * 15, [0.0, 0.2, 0.5])
     write_run(runs, "ipg_her", "FetchPush-v4", 3, [-50] * 15, [0.0, 0.1, 0.1])
-    groups = report.collect(runs, WINDOW)
+    groups = events.collect(runs, WINDOW)
     groups["ipg_her__FetchPush-v4"]["2"]["unfinished_at"] = 1500
     run = groups["ipg_her__FetchPush-v4"]["1"]
     run["charts/SPS"] = [[500, 250], [1000, 1000], [1500, 500]]
@@ -310,7 +310,7 @@ def test_finalists_table_reads_fresh_seeds_only_with_bootstrap_intervals(tmp_pat
             runs, "ipg_her_nu0.8_b100", "FetchReach-v4", seed, [-50] * 15, [0.2] * 5 + [success]
         )
     write_run(runs, "ipg_her_nu1.0_b100", "FetchReach-v4", 11, [-50] * 15, [1.0, 1.0])
-    groups = report.collect(runs, WINDOW)
+    groups = events.collect(runs, WINDOW)
     rows = report.finalists_table(groups, np.random.default_rng(0), 11).splitlines()
     assert len(rows) == 3, "nu 1.0 has one fresh seed: no interval, no row"
     cells = rows[2].split(" | ")
@@ -643,8 +643,8 @@ def test_a_damaged_event_file_is_named_in_a_warning(tmp_path, capsys, damage):
     runs = tmp_path / "runs" / "test"
     for seed in (1, 2):
         write_run(runs, "algo", "Hopper-v5", seed, [100.0 * seed] * 40)
-    (events,) = (runs / "algo__Hopper-v5__seed2").rglob("events.out.tfevents.*")
-    data, starts = bytearray(events.read_bytes()), [0]  # a record: length, CRC, event, CRC
+    (event_file,) = (runs / "algo__Hopper-v5__seed2").rglob("events.out.tfevents.*")
+    data, starts = bytearray(event_file.read_bytes()), [0]  # a record: length, CRC, event, CRC
     while starts[-1] < len(data):
         starts.append(starts[-1] + 16 + int.from_bytes(data[starts[-1] : starts[-1] + 8], "little"))
     record = starts[len(starts) // 2]  # a record in the middle: a training return's
@@ -652,21 +652,23 @@ def test_a_damaged_event_file_is_named_in_a_warning(tmp_path, capsys, damage):
         data = data[: record + 14]
     else:
         data[record if damage == "length" else record + 14] ^= 0x04
-    events.write_bytes(bytes(data))
+    event_file.write_bytes(bytes(data))
     capsys.readouterr()
-    groups = report.collect(runs, WINDOW)["algo__Hopper-v5"]
+    groups = events.collect(runs, WINDOW)["algo__Hopper-v5"]
     warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warn")]
-    assert len(warnings) == 1 and str(events) in warnings[0], warnings
+    assert len(warnings) == 1 and str(event_file) in warnings[0], warnings
     if damage == "cut":
         assert 0 < len(groups["2"]["charts/episodic_return"]) < 40 and groups["2"]["final"] == 200
     else:
         assert list(groups) == ["1"] and "left out" in warnings[0]
 
 
-def test_a_suites_report_settings_are_its_entry_in_run_py_not_branches_on_its_name(tmp_path):
-    """report.py never asks which suite it reads: what one shows beyond the common tables (its
-    figures, budgets, levels) is the Report beside its runs in run.py's SUITES."""
-    source = (ROOT / "benchmarks" / "report.py").read_text()
+def test_a_suites_report_settings_are_its_entry_in_suites_py_not_branches_on_its_name(tmp_path):
+    """report.py and its modules never ask which suite they read: what one shows beyond the
+    common tables (its figures, budgets, levels) is the Report beside its runs in suites.py's
+    SUITES."""
+    modules = ("report", "events", "stats")
+    source = "".join((ROOT / "benchmarks" / f"{name}.py").read_text() for name in modules)
     assert not re.findall(r"suite\s*(?:==|!=|not in|in)\s*[(\"']", source)
     reach = {}
     for suite in ("goals", "fetch"):  # the same run: only fetch's Report asks for a reach table
@@ -677,7 +679,7 @@ def test_a_suites_report_settings_are_its_entry_in_run_py_not_branches_on_its_na
             "steps (training h) per seed" in (tmp_path / suite / "results.md").read_text()
         )
     assert reach == {"goals": False, "fetch": True}
-    assert report.SUITES["goals"].report.levels == () and report.SUITES["fetch"].report.levels
+    assert suites.SUITES["goals"].report.levels == () and suites.SUITES["fetch"].report.levels
 
 
 def test_a_suite_run_py_does_not_know_is_refused_before_anything_is_written(tmp_path):
@@ -713,7 +715,7 @@ def test_every_run_folder_left_out_is_named_with_why(tmp_path, capsys):
         sleeper.stdout.readline()  # started: its command line is its own
         (running / "pid").write_text(f"{sleeper.pid}\n")
         try:
-            assert list(report.collect(runs, WINDOW)["algo__Hopper-v5"]) == ["1"]
+            assert list(events.collect(runs, WINDOW)["algo__Hopper-v5"]) == ["1"]
         finally:
             sleeper.kill()
     warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warn")]
