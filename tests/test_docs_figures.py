@@ -18,7 +18,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks import report, stats  # noqa: E402
+from benchmarks import report, stats, tables  # noqa: E402
 from benchmarks.suites import SUITES as RUNS  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
@@ -47,7 +47,7 @@ def task_tables(suite: str, seeds: tuple[int, ...] = ()) -> str:
         ran[group.split("__")[1]].update(int(seed) for seed in runs)
     for env_id, anchors in report.load_anchor_runs(report.ANCHOR_RUNS, ran).items():
         peers[env_id] += anchors
-    return report.task_tables(groups, peers, report.Args.seed)
+    return tables.task_tables(groups, peers, report.Args.seed)
 
 
 def split_row(line: str) -> list[str]:
@@ -129,7 +129,7 @@ def test_each_results_md_holds_the_tables_its_curves_json_gives(suite):
     from the same folder's ``curves.json``: a hand-edited or stale results.md fails."""
     committed = (RESULTS / suite / "results.md").read_text()
     groups = curves(suite)
-    computed = task_tables(suite) + "\n" + report.table(groups, report.Args.window)
+    computed = task_tables(suite) + "\n" + tables.table(groups, report.Args.window)
     missing = [
         line for line in computed.splitlines() if line.startswith("|") and line not in committed
     ]
@@ -165,7 +165,7 @@ def highest_eval(suite: str, *groups: str) -> str:
 
 def training_return(suite: str, label: str) -> str:
     """The first table's "final (mean ± sample std)" on Hopper, "2220 ± 347" as "2,220 ± 347"."""
-    lines = report.table(curves(suite), report.Args.window).splitlines()
+    lines = tables.table(curves(suite), report.Args.window).splitlines()
     cells = next(split_row(line) for line in lines if line.startswith(f"| Hopper-v5 | {label} |"))
     mean, std = cells[3].split(" ± ")
     return f"{int(mean):,} ± {int(std):,}"

@@ -15,7 +15,7 @@ import pytest
 from conftest import ROOT, assert_clean_error
 from torch.utils.tensorboard import SummaryWriter
 
-from benchmarks import events, report, stats, suites
+from benchmarks import events, report, stats, suites, tables
 
 WINDOW = 5
 
@@ -76,7 +76,7 @@ def test_table_statistics_equal_hand_computed_values(tmp_path):
     for seed, level in finals.items():
         write_run(runs, "algo", "Hopper-v5", seed, [0.0] * 5 + [level] * WINDOW)
     groups = events.collect(runs, WINDOW)
-    row = next(r for r in report.table(groups, WINDOW).splitlines() if "Hopper-v5" in r)
+    row = next(r for r in tables.table(groups, WINDOW).splitlines() if "Hopper-v5" in r)
     cells = [c.strip() for c in row.strip("|").split("|")]
     values = np.array(list(finals.values()))
     assert cells[2] == "4"
@@ -270,14 +270,14 @@ def test_diagnostics_table_against_hand_computed_medians():
         },
         "ppo_kl__FetchReach-v4": {"1": {"charts/episodic_return": [[100, -50.0]]}},
     }
-    rows = report.diagnostics_table(groups).splitlines()
+    rows = tables.diagnostics_table(groups).splitlines()
     assert len(rows) == 3, "a header, a separator and one row: ppo_kl logged no diagnostics"
     # effective nu: run medians 0.2 and 0.4; ratio: 2 and 1; corr: 0.5 and 0.2
     assert rows[2] == (
         "| FetchReach-v4 | ipg_her_nu0.5_b100 | 2 | 0.30 [0.20, 0.40] | 1.50 [1.00, 2.00] "
         "| 0.35 [0.20, 0.50] |"
     )
-    assert report.diagnostics_table({"ppo_kl__Hopper-v5": groups["ppo_kl__FetchReach-v4"]}) == ""
+    assert tables.diagnostics_table({"ppo_kl__Hopper-v5": groups["ppo_kl__FetchReach-v4"]}) == ""
 
 
 def test_reach_table_gives_steps_and_training_hours_per_seed(tmp_path):
@@ -295,7 +295,7 @@ def test_reach_table_gives_steps_and_training_hours_per_seed(tmp_path):
     assert stats.first_eval_at(run, 0.5) == (1000, 1.0)
     assert stats.first_eval_at(run, 0.9) == (1500, 3.0)
     assert np.isnan(stats.first_eval_at(run, 0.95)[0])
-    row = report.reach_table(groups, (0.5, 0.9)).splitlines()[2]
+    row = tables.reach_table(groups, (0.5, 0.9)).splitlines()[2]
     # seed 2 and 3 log SPS 1000 at step 1,500: 1.5 s = 0.0 h
     assert row.split(" | ")[2:] == ["1,000 (0.0) / 1,500 (0.0) / never", "1,500",
                                     "1,500 (0.0) / not yet / never", "- |"]  # fmt: skip
@@ -311,14 +311,14 @@ def test_finalists_table_reads_fresh_seeds_only_with_bootstrap_intervals(tmp_pat
         )
     write_run(runs, "ipg_her_nu1.0_b100", "FetchReach-v4", 11, [-50] * 15, [1.0, 1.0])
     groups = events.collect(runs, WINDOW)
-    rows = report.finalists_table(groups, np.random.default_rng(0), 11).splitlines()
+    rows = tables.finalists_table(groups, np.random.default_rng(0), 11).splitlines()
     assert len(rows) == 3, "nu 1.0 has one fresh seed: no interval, no row"
     cells = rows[2].split(" | ")
     assert cells[2] == "3 (11-13)"
     assert cells[3] == "@ 2,500: 0.20 [0.20, 0.20]", "2,500 steps: the same in all"
     mean, lo, hi = map(float, re.findall(r"[0-9.]+", cells[4]))
     assert mean == 0.6 and 0.4 <= lo < mean < hi <= 0.8
-    assert report.finalists_table({}, np.random.default_rng(0), 11) == ""
+    assert tables.finalists_table({}, np.random.default_rng(0), 11) == ""
 
 
 def test_early_evaluation_is_labelled_with_the_step_it_was_at():
@@ -330,7 +330,7 @@ def test_early_evaluation_is_labelled_with_the_step_it_was_at():
         "final": value,
     }
     groups = {"ipg_nu0.0_300k__Hopper-v5": {"11": run(20_480, 500.0), "12": run(20_480, 700.0)}}
-    row = report.finalists_table(groups, np.random.default_rng(0), 11).splitlines()[2]
+    row = tables.finalists_table(groups, np.random.default_rng(0), 11).splitlines()[2]
     assert row.split(" | ")[3].startswith("@ 81,920: 600 ["), row
     runs = [run(20_480, 1.0), run(25_000, 1.0)]
     assert stats.steps_at(runs, "eval/episodic_return", 100_000) == "81,920-100,000"
@@ -401,7 +401,7 @@ def test_iqm_interval_against_the_exact_bootstrap_distribution():
     finals = [0.0, 100.0, 500.0, 600.0, 10000.0]
     groups = {"algo__Hopper-v5": {str(s): {"eval/episodic_return": [[1000, v]]}
                                   for s, v in enumerate(finals)}}  # fmt: skip
-    row = report.task_tables(groups, {}, 0).splitlines()[4]
+    row = tables.task_tables(groups, {}, 0).splitlines()[4]
     median, iqm = row.split(" | ")[2:4]
     assert median.startswith("500 [") and iqm.startswith("400 [")  # (100 + 500 + 600) / 3
     for cell, point in ((median, 500), (iqm, 400)):
@@ -424,7 +424,7 @@ def test_time_to_threshold_is_each_seeds_step_over_the_sps_it_logged_there():
               "charts/SPS": [[1000, 10], [2000, 10], [3000, 10]]},
     }}  # fmt: skip
     assert stats.first_eval_at(groups["ipg_her__FetchPush-v4"]["1"], 0.5) == (2000, 40.0)
-    lines = report.task_tables(groups, {}, 0).splitlines()
+    lines = tables.task_tables(groups, {}, 0).splitlines()
     assert lines[0] == "**FetchPush-v4** (levels: evaluation success 0.5 / 0.7 / 0.9; " \
         "no anchor recorded for this task)"  # fmt: skip
     cells = lines[4].strip(" |").split(" | ")
@@ -434,27 +434,27 @@ def test_time_to_threshold_is_each_seeds_step_over_the_sps_it_logged_there():
                            "not reached (1/3)", "-", "1,000", "370"]  # fmt: skip
     hopper = {"qprop__Hopper-v5": {"1": {"eval/episodic_return": [[100, 900.0], [200, 2500.0]],
                                          "charts/SPS": [[100, 10], [200, 10]]}}}  # fmt: skip
-    lines = report.task_tables(hopper, {}, 0).splitlines()
+    lines = tables.task_tables(hopper, {}, 0).splitlines()
     assert "first eval >= 1000:" in lines[2] and "first eval >= 3000:" in lines[2]
     assert lines[4].split(" | ")[4:10] == ["200 (1/1)", "20 s", "200 (1/1)", "20 s",
                                            "not reached (0/1)", "-"]  # fmt: skip
-    assert [report.duration(s) for s in (3.25, 45, 1020, 9000, np.inf)] == \
+    assert [tables.duration(s) for s in (3.25, 45, 1020, 9000, np.inf)] == \
         ["3.2 s", "45 s", "17 min", "2.5 h", "-"]  # fmt: skip
     # Hopper's PPO-KL: every 100,352 steps, then once more at the end of its 300k
-    assert report.eval_every([[[100_352, 0], [200_704, 0], [299_008, 0]]] * 2) == "100,352"
-    assert report.eval_every([[[500, 0], [1000, 0]], [[25_600, 0], [51_200, 0]]]) == "500-25,600"
+    assert tables.eval_every([[[100_352, 0], [200_704, 0], [299_008, 0]]] * 2) == "100,352"
+    assert tables.eval_every([[[500, 0], [1000, 0]], [[25_600, 0], [51_200, 0]]]) == "500-25,600"
 
 
 def test_a_level_never_reached_by_half_the_seeds_or_more_is_not_reached():
     """Two seeds of four got there: the median counts the other two as never, so it is never
     (not the median of the two that did); a seed still running is named as such."""
     steps = [1000.0, 2000.0, np.nan, np.nan]
-    assert report.reach_cells(steps, [10.0, 20.0, np.nan, np.nan]) == ("not reached (2/4)", "-")
-    assert report.reach_cells(steps[:3], [10.0, 20.0, np.nan]) == ("2,000 (2/3)", "20 s")
-    assert report.reach_cells([np.nan] * 3, [np.nan] * 3, running=1) == (
+    assert tables.reach_cells(steps, [10.0, 20.0, np.nan, np.nan]) == ("not reached (2/4)", "-")
+    assert tables.reach_cells(steps[:3], [10.0, 20.0, np.nan]) == ("2,000 (2/3)", "20 s")
+    assert tables.reach_cells([np.nan] * 3, [np.nan] * 3, running=1) == (
         "not reached (0/3; 1 still running)", "-")  # fmt: skip
-    assert report.reach_cells([1000.0], None) == ("1,000 (1/1)", "n/a")  # time not recorded
-    assert report.reach_cells([1000.0], [np.nan]) == ("1,000 (1/1)", "n/a")  # no SPS logged
+    assert tables.reach_cells([1000.0], None) == ("1,000 (1/1)", "n/a")  # time not recorded
+    assert tables.reach_cells([1000.0], [np.nan]) == ("1,000 (1/1)", "n/a")  # no SPS logged
 
 
 def write_side_by_side(path):
@@ -667,7 +667,7 @@ def test_a_suites_report_settings_are_its_entry_in_suites_py_not_branches_on_its
     """report.py and its modules never ask which suite they read: what one shows beyond the
     common tables (its figures, budgets, levels) is the Report beside its runs in suites.py's
     SUITES."""
-    modules = ("report", "events", "stats")
+    modules = ("report", "events", "stats", "tables")
     source = "".join((ROOT / "benchmarks" / f"{name}.py").read_text() for name in modules)
     assert not re.findall(r"suite\s*(?:==|!=|not in|in)\s*[(\"']", source)
     reach = {}
