@@ -19,6 +19,12 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from benchmarks import report, stats, tables  # noqa: E402
+from benchmarks.peers import (  # noqa: E402
+    ANCHOR_RUNS,
+    SIDE_BY_SIDE,
+    load_anchor_runs,
+    load_peers,
+)
 from benchmarks.suites import SUITES as RUNS  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
@@ -41,11 +47,11 @@ def task_tables(suite: str, seeds: tuple[int, ...] = ()) -> str:
             g: {s: r for s, r in runs.items() if int(s) in seeds} for g, runs in groups.items()
         }
         groups = {g: runs for g, runs in groups.items() if runs}
-    peers = report.load_peers(report.SIDE_BY_SIDE)
+    peers = load_peers(SIDE_BY_SIDE)
     ran = defaultdict(set)
     for group, runs in groups.items():
         ran[group.split("__")[1]].update(int(seed) for seed in runs)
-    for env_id, anchors in report.load_anchor_runs(report.ANCHOR_RUNS, ran).items():
+    for env_id, anchors in load_anchor_runs(ANCHOR_RUNS, ran).items():
         peers[env_id] += anchors
     return tables.task_tables(groups, peers, report.Args.seed)
 
@@ -142,7 +148,7 @@ def test_each_results_md_holds_the_tables_its_curves_json_gives(suite):
 
 def side_by_side() -> tuple[float, float]:
     """The medians of the training seconds to 0.9 in the against_sb3 export: ours, SB3's."""
-    data = json.loads(report.SIDE_BY_SIDE.read_text())
+    data = json.loads(SIDE_BY_SIDE.read_text())
     return tuple(
         statistics.median(r["train_s_to_0.9"] for r in data[key])
         for key in ("ipg_her", "sb3_ddpg_her")

@@ -15,7 +15,7 @@ import pytest
 from conftest import ROOT, assert_clean_error
 from torch.utils.tensorboard import SummaryWriter
 
-from benchmarks import events, report, stats, suites, tables
+from benchmarks import events, peers, report, stats, suites, tables
 
 WINDOW = 5
 
@@ -350,7 +350,7 @@ def test_fetch_suite_report_draws_each_task_with_its_anchor_and_three_reach_leve
     text = (tmp_path / "results" / "results.md").read_text()
     assert text.endswith("\n![fetch_FetchPush-v4.png](../img/fetch_FetchPush-v4.png)\n")
     assert "first eval >= 0.7" in text and "| 2,000 |" in text  # 0.9 first at 2,000 steps
-    assert report.ANCHORS["FetchPush-v4"] == ((100_000, 0.5), (200_000, 0.9))  # the issue's table
+    assert peers.ANCHORS["FetchPush-v4"] == ((100_000, 0.5), (200_000, 0.9))  # the issue's table
 
 
 def test_fetch_figures_draw_the_median_seed_and_the_band_from_lowest_to_highest():
@@ -481,12 +481,12 @@ def test_the_anchor_is_drawn_in_and_given_its_row(tmp_path, monkeypatch):
     import matplotlib.pyplot as plt
 
     sb3 = write_side_by_side(tmp_path / "side.json")
-    peers = report.load_peers(tmp_path / "side.json")
-    (anchor, ours) = peers["FetchReach-v4"]
+    found = peers.load_peers(tmp_path / "side.json")
+    (anchor, ours) = found["FetchReach-v4"]
     assert anchor.anchor and not ours.anchor
     assert anchor.first[0.9] == [1000, 1500] and anchor.seconds == {0.9: [6.0, 8.0]}
     fig, ax = plt.subplots()
-    report.draw_anchors(ax, peers["FetchReach-v4"], per_episode=True)
+    report.draw_anchors(ax, found["FetchReach-v4"], per_episode=True)
     (line,) = ax.lines  # ours side by side is not an anchor: not drawn
     assert line.get_label().startswith("SB3 DDPG+HER, anchor: median of 2 seeds")
     np.testing.assert_allclose(line.get_xdata(), [0, 10, 20, 30])  # 50 steps an episode
@@ -494,7 +494,7 @@ def test_the_anchor_is_drawn_in_and_given_its_row(tmp_path, monkeypatch):
     band = ax.collections[0].get_paths()[0].vertices[:, 1]
     assert band.min() == 0.0 and band.max() == 1.0
     fig, ax = plt.subplots()
-    report.draw_anchors(ax, peers["FetchPush-v4"])
+    report.draw_anchors(ax, found["FetchPush-v4"])
     np.testing.assert_array_equal(ax.lines[0].get_xydata(), [[100_000, 0.5], [200_000, 0.9]])
     plt.close("all")
 
@@ -505,7 +505,7 @@ def test_the_anchor_is_drawn_in_and_given_its_row(tmp_path, monkeypatch):
     assert (
         report.main(report_args(tmp_path, "quick", side_by_side=str(tmp_path / "side.json"))) == 0
     )
-    assert drawn == [(peers["FetchReach-v4"], {"per_episode": True})]  # the success figure
+    assert drawn == [(found["FetchReach-v4"], {"per_episode": True})]  # the success figure
     text = (tmp_path / "results" / "results.md").read_text()
     row = next(line for line in text.splitlines() if line.startswith("| SB3 DDPG+HER"))
     # finals 1.0 and 0.9; 0.5 first at 1,000 / 500, 0.7 at 1,000 / 1,000, 0.9 at 1,000 / 1,500
@@ -517,12 +517,12 @@ def test_the_anchor_is_drawn_in_and_given_its_row(tmp_path, monkeypatch):
 
 def test_the_committed_side_by_side_run_reads_as_it_recorded_itself():
     """load_peers's steps to 0.9, found on the curves, are the ones against_sb3.py recorded."""
-    recorded = json.loads(report.SIDE_BY_SIDE.read_text())
-    peers = report.load_peers(report.SIDE_BY_SIDE)["FetchReach-v4"]
-    peers = {p.label.split(" ")[0]: p for p in peers}
+    recorded = json.loads(peers.SIDE_BY_SIDE.read_text())
+    found = peers.load_peers(peers.SIDE_BY_SIDE)["FetchReach-v4"]
+    found = {p.label.split(" ")[0]: p for p in found}
     for key, name in (("sb3_ddpg_her", "SB3"), ("ipg_her", "IPG+HER")):
-        assert peers[name].first[0.9] == [r["steps_to_0.9"] for r in recorded[key]]
-        assert peers[name].seconds[0.9] == [r["train_s_to_0.9"] for r in recorded[key]]
+        assert found[name].first[0.9] == [r["steps_to_0.9"] for r in recorded[key]]
+        assert found[name].seconds[0.9] == [r["train_s_to_0.9"] for r in recorded[key]]
 
 
 def test_an_anchor_run_here_gets_its_row_its_times_and_its_speed(tmp_path, monkeypatch):
@@ -542,7 +542,7 @@ def test_an_anchor_run_here_gets_its_row_its_times_and_its_speed(tmp_path, monke
                              for s, v, w, e in records]}  # fmt: skip
         (folder / "summary.json").write_text(json.dumps(summary))
     seeds = {"HandReach-v3": {301, 302}, "FetchPush-v4": {303}}
-    (anchor,) = report.load_anchor_runs(tmp_path / "anchors", seeds)["HandReach-v3"]
+    (anchor,) = peers.load_anchor_runs(tmp_path / "anchors", seeds)["HandReach-v3"]
     # seed 301: 0.5 first at 1,000 (5 s less 2 s of evaluation), 0.7 and 0.9 at 2,000 (9 s - 3 s);
     # seed 302: 0.5 and 0.7 at 2,000 (14 s - 6 s), 0.9 never
     assert anchor.first[0.5] == [1000, 2000] and anchor.seconds[0.5] == [3.0, 8.0]
@@ -667,7 +667,7 @@ def test_a_suites_report_settings_are_its_entry_in_suites_py_not_branches_on_its
     """report.py and its modules never ask which suite they read: what one shows beyond the
     common tables (its figures, budgets, levels) is the Report beside its runs in suites.py's
     SUITES."""
-    modules = ("report", "events", "stats", "tables")
+    modules = ("report", "events", "stats", "tables", "peers")
     source = "".join((ROOT / "benchmarks" / f"{name}.py").read_text() for name in modules)
     assert not re.findall(r"suite\s*(?:==|!=|not in|in)\s*[(\"']", source)
     reach = {}
