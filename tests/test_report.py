@@ -15,7 +15,7 @@ import pytest
 from conftest import ROOT, assert_clean_error
 from torch.utils.tensorboard import SummaryWriter
 
-from benchmarks import events, peers, report, stats, suites, tables
+from benchmarks import events, figures, peers, report, stats, suites, tables
 
 WINDOW = 5
 
@@ -362,7 +362,7 @@ def test_fetch_figures_draw_the_median_seed_and_the_band_from_lowest_to_highest(
     groups = {"ipg_her__FetchPush-v4": {s: {"eval/success_rate": [[0, 0.0], [10, v]]}
                                         for s, v in ends.items()}}  # fmt: skip
     fig, ax = plt.subplots()
-    report.plot(ax, groups, ["ipg_her"], "FetchPush-v4", "eval/success_rate", None, median=True)
+    figures.plot(ax, groups, ["ipg_her"], "FetchPush-v4", "eval/success_rate", None, median=True)
     assert ax.lines[0].get_ydata()[-1] == pytest.approx(0.2)
     band = ax.collections[0].get_paths()[0].vertices[:, 1]
     assert band.min() == pytest.approx(0.0) and band.max() == pytest.approx(1.0)
@@ -377,7 +377,7 @@ def test_curves_go_on_dashed_past_the_shortest_seed():
     runs = {1: [[0, 0.0], [10, 0.2]], 2: [[0, 0.0], [10, 0.4], [20, 0.6]]}
     groups = {"ipg_her__FetchSlide-v4": {s: {"eval/success_rate": p} for s, p in runs.items()}}
     fig, ax = plt.subplots()
-    report.plot(ax, groups, ["ipg_her"], "FetchSlide-v4", "eval/success_rate", None, median=True)
+    figures.plot(ax, groups, ["ipg_her"], "FetchSlide-v4", "eval/success_rate", None, median=True)
     (solid, dashed) = ax.lines
     x_solid = solid.get_xdata()[np.isfinite(solid.get_ydata())]
     x_dashed, y_dashed = (v[np.isfinite(dashed.get_ydata())] for v in dashed.get_xydata().T)
@@ -486,7 +486,7 @@ def test_the_anchor_is_drawn_in_and_given_its_row(tmp_path, monkeypatch):
     assert anchor.anchor and not ours.anchor
     assert anchor.first[0.9] == [1000, 1500] and anchor.seconds == {0.9: [6.0, 8.0]}
     fig, ax = plt.subplots()
-    report.draw_anchors(ax, found["FetchReach-v4"], per_episode=True)
+    figures.draw_anchors(ax, found["FetchReach-v4"], per_episode=True)
     (line,) = ax.lines  # ours side by side is not an anchor: not drawn
     assert line.get_label().startswith("SB3 DDPG+HER, anchor: median of 2 seeds")
     np.testing.assert_allclose(line.get_xdata(), [0, 10, 20, 30])  # 50 steps an episode
@@ -494,12 +494,12 @@ def test_the_anchor_is_drawn_in_and_given_its_row(tmp_path, monkeypatch):
     band = ax.collections[0].get_paths()[0].vertices[:, 1]
     assert band.min() == 0.0 and band.max() == 1.0
     fig, ax = plt.subplots()
-    report.draw_anchors(ax, found["FetchPush-v4"])
+    figures.draw_anchors(ax, found["FetchPush-v4"])
     np.testing.assert_array_equal(ax.lines[0].get_xydata(), [[100_000, 0.5], [200_000, 0.9]])
     plt.close("all")
 
     drawn = []
-    monkeypatch.setattr(report, "draw_anchors", lambda ax, p, **kw: drawn.append((p, kw)))
+    monkeypatch.setattr(figures, "draw_anchors", lambda ax, p, **kw: drawn.append((p, kw)))
     runs = tmp_path / "runs" / "quick"
     write_run(runs, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
     assert (
@@ -551,7 +551,7 @@ def test_an_anchor_run_here_gets_its_row_its_times_and_its_speed(tmp_path, monke
     assert np.isnan(anchor.first[0.9][1]) and np.isnan(anchor.seconds[0.9][1])
 
     drawn = []
-    monkeypatch.setattr(report, "draw_anchors", lambda ax, p, **kw: drawn.append((p, kw)))
+    monkeypatch.setattr(figures, "draw_anchors", lambda ax, p, **kw: drawn.append((p, kw)))
     for seed in (301, 302):
         write_run(tmp_path / "runs" / "goals", "ipg_her", "HandReach-v3", seed, [-50] * 3, [0, 1])
     assert report.main(report_args(tmp_path, "goals", anchor_runs=str(tmp_path / "anchors"))) == 0
@@ -667,7 +667,7 @@ def test_a_suites_report_settings_are_its_entry_in_suites_py_not_branches_on_its
     """report.py and its modules never ask which suite they read: what one shows beyond the
     common tables (its figures, budgets, levels) is the Report beside its runs in suites.py's
     SUITES."""
-    modules = ("report", "events", "stats", "tables", "peers")
+    modules = ("report", "events", "stats", "tables", "peers", "figures")
     source = "".join((ROOT / "benchmarks" / f"{name}.py").read_text() for name in modules)
     assert not re.findall(r"suite\s*(?:==|!=|not in|in)\s*[(\"']", source)
     reach = {}
