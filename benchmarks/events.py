@@ -18,6 +18,9 @@ DIAGNOSTICS = ("ipg/effective_nu", "ipg/grad_var", "ipg/grad_var_cv", "ipg/corr_
 TAGS = ("charts/episodic_return", "charts/episodic_length", "charts/success_rate",
         "charts/policy_entropy", "charts/SPS", "eval/episodic_return",
         "eval/success_rate", *DIAGNOSTICS)  # fmt: skip
+# the window of an export from before runs kept theirs: the default then, with which every
+# committed export was made (their results.md say so)
+UNRECORDED_WINDOW = 100
 
 
 class CorruptEventFile(ValueError):
@@ -90,8 +93,9 @@ def downsample(points: list, n: int = 300) -> list:
 
 def collect(runs_dir: Path, window: int, include_unfinished: bool = False) -> dict:
     """{group "name__env_id": {seed: run}} from the folders run.py wrote. Each run keeps its
-    summary (``final``, ``reach``) computed from the full event data, and curves downsampled for
-    plotting: the export stays small and still reproduces the table exactly. Only runs whose
+    summary (``final``, ``reach``) computed from the full event data over the last ``window``
+    training episodes (kept as ``window``), and curves downsampled for plotting: the export stays
+    small and still reproduces the table exactly, over that window only. Only runs whose
     ``exit_code`` is 0 are read, or with ``include_unfinished``, also those that were stopped (no
     exit code, or a signal's) with a resume point to go on from, kept with ``unfinished_at``, the
     last step they logged. Every other run folder is left out with a warning saying why (failed,
@@ -124,6 +128,7 @@ def collect(runs_dir: Path, window: int, include_unfinished: bool = False) -> di
             run["unfinished_at"] = max(steps)
         run["final"] = final_performance(run, bool(run.get("charts/success_rate")), window)
         run["reach"] = steps_to_threshold(run, env_id, window)
+        run["window"] = window
         for tag in ("charts/episodic_return", "charts/episodic_length", "charts/success_rate",
                     "charts/policy_entropy", *DIAGNOSTICS):  # fmt: skip
             if tag in run:
@@ -155,8 +160,9 @@ def left_out(
 
 
 def read_export(path: Path) -> dict:
-    """The runs of an export, {group "name__env_id": {seed: run}}; ValueError for a file that is
-    not one (damaged, or JSON of another shape: a list, a number)."""
+    """The runs of an export, {group "name__env_id": {seed: run}}, each with the ``window`` its
+    summary was computed over (``UNRECORDED_WINDOW`` if it records none); ValueError for a file
+    that is not one (damaged, or JSON of another shape: a list, a number)."""
     text = path.read_text()
     groups = json.loads(text)
     if not isinstance(groups, dict):
@@ -168,4 +174,6 @@ def read_export(path: Path) -> dict:
             raise ValueError(f'{group!r} is not a group "name__env_id" of runs {{seed: run}}')
         if not all(isinstance(run, dict) for run in runs.values()):
             raise ValueError(f"a run of {group} is not an object")
+        for run in runs.values():
+            run.setdefault("window", UNRECORDED_WINDOW)
     return groups

@@ -73,7 +73,8 @@ class Args:
     from_export: bool = False
     """redraw from the results folder's curves.json instead of the event files"""
     window: int = 100
-    """final performance: mean over this many last training episodes"""
+    """final performance: mean over this many last training episodes (an export keeps the window
+    its runs were read with: --from-export, --keep-export and --merge-export need the same)"""
     seed: int = 0
     """seed of the bootstrap confidence intervals"""
     merge_export: str = ""
@@ -202,6 +203,22 @@ def main(args: Args) -> int:
             return refuse(f"{len(lost)} of the {n} runs in {export} are not in {runs_dir} "
                           f"({lost[0]}, ...), so the export is left as it is: --keep-export "
                           "keeps them, --replace-export drops them")  # fmt: skip
+    # results.md states one window: every run's final return and steps to threshold, computed
+    # when it was read from its event files, must be over --window's
+    windows = {run["window"] for runs in groups.values() for run in runs.values()}
+    if other := sorted(windows - {args.window}):
+        held = export if args.from_export else f"{export} (--keep-export) or --merge-export"
+        instead = (
+            "read the event files without --from-export"
+            if args.from_export
+            else "leave those runs out"
+        )
+        return refuse(
+            f"--window {args.window}: the runs from {held} hold their final return and steps to "
+            f"threshold over the last {' or '.join(map(str, other))} training episodes, which an "
+            f"export's downsampled curves cannot give again over {args.window}; pass --window "
+            f"{other[0]}, or {instead}"
+        )
     settings = SUITES[args.suite].report
     rng = np.random.default_rng(args.seed)
     peers = load_peers(Path(args.side_by_side) if args.side_by_side else SIDE_BY_SIDE)

@@ -780,6 +780,64 @@ def test_a_bad_merge_export_or_window_is_one_error_line_before_anything_is_writt
     assert snapshot(tmp_path) == before
 
 
+def test_an_export_is_redrawn_only_over_the_window_its_runs_were_read_with(tmp_path, capsys):
+    """``--from-export --window N``: the export's final returns and steps to threshold were
+    computed over the window it was read with, so N only reworded results.md ("the last N
+    training episodes") over numbers that are not. Each run keeps its window; another N is one
+    error line naming both, and nothing written. An export from before runs kept their window
+    was read with the default, 100."""
+    write_run(tmp_path / "runs" / "quick", "ppo_kl", "Hopper-v5", 1, [100.0] * 8 + [900.0] * 2)
+    assert report.main(report_args(tmp_path, "quick", window=2)) == 0
+    export = tmp_path / "results" / "curves.json"
+    (run,) = json.loads(export.read_text())["ppo_kl__Hopper-v5"].values()
+    assert run["final"] == 900  # the last 2 returns: 900 and 900
+    text = (tmp_path / "results" / "results.md").read_text()
+    assert "the mean return of the last 2 training episodes" in text
+    before = snapshot(tmp_path)
+    capsys.readouterr()
+    assert report.main(report_args(tmp_path, "quick", from_export=True, window=10)) == 2
+    error = the_error_line(capsys)
+    assert "--window 10:" in error and "over the last 2 training episodes" in error, error
+    assert "pass --window 2" in error, error
+    assert snapshot(tmp_path) == before
+    assert report.main(report_args(tmp_path, "quick", from_export=True, window=2)) == 0
+    assert (tmp_path / "results" / "results.md").read_text() == text
+
+    assert run["window"] == 2  # what the export records
+    groups = json.loads(export.read_text())
+    del groups["ppo_kl__Hopper-v5"]["1"]["window"]  # an export written before runs kept theirs
+    export.write_text(json.dumps(groups))
+    capsys.readouterr()
+    assert report.main(report_args(tmp_path, "quick", from_export=True, window=2)) == 2
+    assert "over the last 100 training episodes" in the_error_line(capsys)
+
+
+@pytest.mark.parametrize("earlier", ["keep_export", "merge_export"])
+def test_runs_kept_or_merged_from_an_export_read_with_another_window_are_refused(
+    tmp_path, capsys, earlier
+):
+    """Runs kept from the suite's export (--keep-export) or merged from an earlier one
+    (--merge-export) keep the final return of the window they were read with: beside runs read
+    now over another --window, one table would state one window over both. One error line, and
+    nothing written."""
+    runs = tmp_path / "runs" / "quick"
+    write_run(runs, "qprop_ppo", "Hopper-v5", 1, [100.0] * 10)
+    assert report.main(report_args(tmp_path, "quick", window=3)) == 0
+    (runs / "qprop_ppo__Hopper-v5__seed1" / "exit_code").unlink()  # its event files elsewhere
+    write_run(runs, "ppo_kl", "Hopper-v5", 2, [100.0] * 10)
+    flags = {"keep_export": True}
+    if earlier == "merge_export":
+        (tmp_path / "results" / "curves.json").rename(tmp_path / "earlier.json")
+        flags = {"merge_export": str(tmp_path / "earlier.json")}
+    before = snapshot(tmp_path)
+    capsys.readouterr()
+    assert report.main(report_args(tmp_path, "quick", window=5, **flags)) == 2
+    error = the_error_line(capsys)
+    assert "--window 5:" in error and "over the last 3 training episodes" in error, error
+    assert snapshot(tmp_path) == before
+    assert report.main(report_args(tmp_path, "quick", window=3, **flags)) == 0
+
+
 def test_a_results_dir_elsewhere_keeps_its_figures_and_never_takes_a_suites(tmp_path, monkeypatch):
     """``--results-dir /elsewhere/paper`` without --figures-dir drew into docs/img/paper, over the
     paper suite's committed figures: the figures now go into the results folder given, linked
