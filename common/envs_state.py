@@ -110,5 +110,6 @@ def _restore_physics(model, data, saved: dict) -> None:
         array.flat[:] = saved["computed"][start : start + array.size]
         start += array.size
     if start != len(saved["computed"]):
-        raise ValueError(f"the saved physics holds {len(saved['computed'])} computed values, "
-                         f"this task {start}")  # fmt: skip
+        raise ValueError(
+            f"the saved physics holds {len(saved['computed'])} computed values, this task {start}"
+        )
