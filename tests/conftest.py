@@ -1,7 +1,8 @@
 """Shared test helpers: run a script in a subprocess, read back its TensorBoard scalars, parse
-and check a command line in-process as a script does, and a random on-policy batch for the update
-functions."""
+and check a command line in-process as a script does, a folder made read-only for a while, and a
+random on-policy batch for the update functions."""
 
+import contextlib
 import inspect
 import os
 import signal
@@ -82,6 +83,23 @@ def refused(capsys, module, *argv: str) -> str:
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: "), lines
     return lines[0]
+
+
+@contextlib.contextmanager
+def read_only(folder: Path):
+    """``folder`` made read-only for a while: chmod 555, or for root (whom it does not stop)
+    chattr +i; the test is skipped where root may not use chattr."""
+    folder.chmod(0o555)
+    immutable = os.access(folder, os.W_OK)  # root
+    if immutable and subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode:
+        folder.chmod(0o755)
+        pytest.skip("root, and chattr +i is not permitted here")
+    try:
+        yield folder
+    finally:
+        if immutable:
+            subprocess.run(["chattr", "-i", str(folder)], check=True)
+        folder.chmod(0o755)
 
 
 @pytest.fixture(autouse=True)

@@ -1,6 +1,5 @@
 """benchmarks/report.py's statistics against values computed by hand, on hand-made event files."""
 
-import contextlib
 import dataclasses
 import errno
 import json
@@ -12,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import ROOT, assert_clean_error
+from conftest import ROOT, assert_clean_error, read_only
 from torch.utils.tensorboard import SummaryWriter
 
 from benchmarks import events, figures, peers, report, stats, suites, tables
@@ -859,23 +858,6 @@ def test_a_results_dir_elsewhere_keeps_its_figures_and_never_takes_a_suites(tmp_
     assert report.main(args) == 0
     assert (tmp_path / "docs" / "img" / "quick" / "fig5_fetchreach_success.png").is_file()
     assert not list((tmp_path / "benchmarks" / "results" / "quick").glob("*.png"))
-
-
-@contextlib.contextmanager
-def read_only(folder):
-    """``folder`` made read-only for a while: chmod 555, or for root (whom it does not stop)
-    chattr +i."""
-    folder.chmod(0o555)
-    immutable = os.access(folder, os.W_OK)  # root
-    if immutable and subprocess.run(["chattr", "+i", str(folder)], capture_output=True).returncode:
-        folder.chmod(0o755)
-        pytest.skip("root, and chattr +i is not permitted here")
-    try:
-        yield folder
-    finally:
-        if immutable:
-            subprocess.run(["chattr", "-i", str(folder)], check=True)
-        folder.chmod(0o755)
 
 
 def report_again_with_a_new_seed(tmp_path, **flags) -> dict:
