@@ -1,4 +1,5 @@
-"""benchmarks/report.py's statistics against values computed by hand, on hand-made event files."""
+"""benchmarks/report.py and its modules (events, stats, tables, figures, peers): the statistics
+against values computed by hand, on hand-made event files, and the command's refusals."""
 
 import dataclasses
 import errno
