@@ -534,10 +534,20 @@ if __name__ == "__main__":
                              args.her_goal_selection_strategy, run.streams.replay_seed)  # fmt: skip
     replay = lambda n, rng=None: sample_replay(rb, norm, 1.0, args.off_policy_batch_size, n, rng)
     reward_scaler = RewardScaler(args.num_envs, args.gamma)
-    raw_obs, beta, alpha = run.start(
-        envs, model=dict(agent=agent, normalizer=norm, qf=qf, qf_target=qf_target),
-        training=dict(optimizer=optimizer, reward_scaler=reward_scaler,
-                      q_optimizer=q_optimizer, rb=rb), beta=args.beta_init, alpha=0.0)  # fmt: skip
+    # what model.pt keeps, and what else resume.pt needs to go on
+    model = dict(agent=agent, normalizer=norm, qf=qf, qf_target=qf_target)
+    training = dict(
+        optimizer=optimizer, reward_scaler=reward_scaler, q_optimizer=q_optimizer, rb=rb
+    )
+    run.start(envs, model, training)  # TRY NOT TO MODIFY: --resume restores them all
+
+    # TRY NOT TO MODIFY: start the game (a resumed run goes on where its resume point left it)
+    global_step, beta = run.global_step, run.restored("beta", args.beta_init)
+    alpha = run.restored("alpha", 0.0)  # the sigma rule's multiplier (sigma_rule)
+    if run.resumed:
+        raw_obs = run.resumed_obs  # the envs mid-episode, as they were
+    else:
+        raw_obs, _ = envs.reset(seed=run.streams.env_seeds)
 
     with run:  # TRY NOT TO MODIFY: Ctrl-C, kill or a NaN end the run cleanly
         for iteration in run.iterations(num_iterations):
@@ -548,8 +558,9 @@ if __name__ == "__main__":
 
             # ALGO LOGIC: rollout
             traj, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
-                                            update_norm=args.norm_obs)  # fmt: skip
-            global_step = run.record_episodes(episodes)
+                                              update_norm=args.norm_obs)  # fmt: skip
+            global_step += args.num_envs * args.num_steps
+            run.record_episodes(episodes, global_step)
 
             # ALGO LOGIC: one reward scale for GAE and the critic
             reward_scale = 1.0

@@ -4,17 +4,25 @@ A script's ``Args`` extends ``RunArgs`` (the run fields, here once) and its loop
 
     run = Run(args)                                   # run folder, TensorBoard, seeded streams
     ...                                               # environments, networks, optimisers
-    raw_obs, beta = run.start(envs, model={...}, training={...}, beta=args.beta_init)
+    run.start(envs, model={...}, training={...})      # what is saved; --resume restores it
+    if run.resumed:                                   # the envs mid-episode, step and beta
+        raw_obs, global_step = run.resumed_obs, run.global_step
+        beta = run.restored("beta", args.beta_init)
+    else:
+        raw_obs, _ = envs.reset(seed=run.streams.env_seeds)
+        global_step, beta = 0, args.beta_init
     with run:                                         # Ctrl-C, kill, NaN: a clean end
         for iteration in run.iterations(num_iterations):
-            ...                                       # the algorithm
-            global_step = run.record_episodes(episodes)
-            ...
+            ...                                       # the rollout
+            global_step += args.num_envs * args.num_steps
+            run.record_episodes(episodes, global_step)
+            ...                                       # the update
             run.end_iteration(stats, beta=beta)       # scalars, evaluation, saving, progress
 
 ``model`` holds what ``model.pt`` keeps (``agent`` and its input ``normalizer``, which is all a
 policy needs, plus any critic); ``training`` what else ``resume.pt`` needs to go on (optimisers,
-replay, reward statistics). Keyword values (``beta``) are scalars a resumed run takes back.
+replay, reward statistics). Keyword values of ``end_iteration`` (``beta``) are scalars saved in
+the resume point, which a resumed run takes back with ``restored``.
 
 Evaluation runs the deterministic policy of a snapshot of ``model`` through
 ``common.evaluate.Policy``, the same code that ``python -m common.evaluate`` runs on a saved
@@ -155,16 +163,14 @@ class Run:
         self.first_iteration, self.last_resume, self.start_time = 1, 0, time.time()
         self.model_step, self.last_line = None, time.time()  # model.pt's step, once written
 
-    def start(self, envs, model: dict, training: dict, **scalars):
-        """Register what is saved, restore it all on ``--resume`` (the environments too, mid-
-        episode), else reset the environments.
-        Returns the first raw observation, then the ``scalars`` (resumed or as given)."""
-        self.envs, self.model, self.scalars = envs, model, scalars
+    def start(self, envs, model: dict, training: dict) -> None:
+        """Register what is saved; on ``--resume`` restore it all, the environments too: they go
+        on mid-episode from ``resumed_obs``, the raw observation they had reached."""
+        self.envs, self.model = envs, model
         streams = dict(eval_rng=self.streams.eval_rng, diagnostics_rng=self.diagnostics_rng,
                        diagnostics_generator=self.diagnostics_generator)  # fmt: skip
         self.parts = model | training | streams
         self.envs_state = EnvsState(envs)
-        raw_obs = None
         if self.resumed:
             r, path = self.resumed, os.path.join(self.dir, checkpoint.RESUME_FILE)
             if missing := [name for name in self.parts if name not in r]:
@@ -174,17 +180,17 @@ class Run:
                     checkpoint.restore(part, r[name])
                 if "envs" in r:  # the envs go on mid-episode, as if the run had never stopped
                     self.envs_state.load_state_dict(r["envs"])
-                    raw_obs = self.envs_state.observations()
+                    self.resumed_obs = self.envs_state.observations()
             except (KeyError, ValueError, RuntimeError, TypeError) as e:  # another run's
                 cli.fail(f"{path} does not fit this run ({type(e).__name__}: {str(e)[:200]})")
             if "envs" not in r:  # a resume point of earlier code: new episodes
                 for part in self.parts.values():
                     if hasattr(part, "end_episodes"):
                         part.end_episodes()
-                raw_obs, _ = envs.reset(seed=seeding.resume_env_seeds(
+                self.resumed_obs, _ = envs.reset(seed=seeding.resume_env_seeds(
                     self.args.seed, self.args.num_envs, r["global_step"]))  # fmt: skip
             checkpoint.set_rng_states(r["rng"])
-            self.scalars = {key: r["scalars"].get(key, value) for key, value in scalars.items()}
+            self.scalars = r["scalars"]
             self.global_step, self.train_time = r["global_step"], r["train_time"]
             self.last_eval, self.last_save = r["last_eval"], r["last_save"]
             self.eval_seeds, self.recent_success = r["eval_seeds"], r["recent_success"]
@@ -202,9 +208,11 @@ class Run:
         self.progress = tqdm(total=self.args.total_timesteps, initial=self.global_step,
                              unit=" steps", disable=not sys.stdout.isatty(), dynamic_ncols=True,
                              bar_format=BAR)  # fmt: skip
-        if raw_obs is None:
-            raw_obs, _ = envs.reset(seed=self.streams.env_seeds)
-        return raw_obs, *self.scalars.values()
+
+    def restored(self, name: str, default):
+        """The scalar ``name`` (an ``end_iteration`` keyword) as the resume point saved it
+        (``default`` if it saved none: a resume point of code before it)."""
+        return self.scalars.get(name, default)
 
     def iterations(self, num_iterations: int):
         self.num_iterations = num_iterations
@@ -212,12 +220,12 @@ class Run:
             self.iteration, self.t0 = iteration, time.time()
             yield iteration
 
-    def record_episodes(self, episodes: list) -> int:
-        """Log the finished training episodes ``(t, env, return, length, success)`` of a
-        rollout; the global step then moves on by the rollout's steps. Returns it."""
+    def record_episodes(self, episodes: list, global_step: int) -> None:
+        """Log the finished training episodes ``(t, env, return, length, success)`` of the
+        rollout that took the run to ``global_step``."""
         num_envs = self.args.num_envs
         for t, _, episodic_return, length, success in episodes:
-            step = self.global_step + (t + 1) * num_envs
+            step = self.global_step + (t + 1) * num_envs  # the rollout's t-th step
             self.writer.add_scalar("charts/episodic_return", episodic_return, step)
             self.writer.add_scalar("charts/episodic_length", length, step)
             if success is not None:
@@ -229,8 +237,7 @@ class Run:
                 if self.recent_success
                 else f"train return (stochastic) {episodes[-1][2]:.1f}"
             )
-        self.global_step += num_envs * self.args.num_steps
-        return self.global_step
+        self.global_step = global_step
 
     def log(self, scalars: dict) -> None:
         """TensorBoard scalars at the current global step: ``{tag: value}``."""
