@@ -29,7 +29,7 @@ import tyro
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from benchmarks.report import read_run  # noqa: E402
+from benchmarks.events import read_run  # noqa: E402
 
 THRESHOLD = 0.9
 

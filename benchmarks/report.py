@@ -35,11 +35,7 @@ import numpy as np
 import tyro
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from benchmarks.events import (  # noqa: E402
-    collect,
-    read_export,
-    read_run,  # noqa: F401  against_sb3.py, probes/sigma_cycle.py, tests/test_ipg.py import it here
-)
+from benchmarks.events import collect, read_export  # noqa: E402
 from benchmarks.figures import (  # noqa: E402
     draw_mixing_figures,
     draw_paper_figures,

@@ -305,7 +305,7 @@ def task_tables_note(groups: dict, peers: dict) -> str:
         text += (
             " *TQC+HER zoo agent (anchor)*: the first evaluations of rl-baselines3-zoo's "
             "published TQC+HER agent for the task (v1 environment, one env, one seed) at the "
-            "levels recorded (`ANCHORS` in report.py)."
+            "levels recorded (`ANCHORS` in benchmarks/peers.py)."
         )
     return text + " n/a: not recorded.\n\n"
 

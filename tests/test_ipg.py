@@ -25,7 +25,7 @@ from toy_envs import counting_envs
 import ipg_her
 import ipg_her_recipe
 import ppo_kl
-from benchmarks import report
+from benchmarks import events
 from common import diagnostics, replay
 from common.her import HerReplayBuffer, sparse_return_range
 from common.normalizer import InputNormalizer
@@ -488,7 +488,7 @@ def test_resume_goes_on_deterministically_and_an_interrupted_stretch_is_not_logg
     acc = EventAccumulator(str(run_dir))
     acc.Reload()
     times = [e.wall_time for tag in acc.Tags()["scalars"] for e in acc.Scalars(tag)]
-    assert report.read_run(run_dir)["wall_time"] < max(times) - min(times) - 1  # pauses left out
+    assert events.read_run(run_dir)["wall_time"] < max(times) - min(times) - 1  # pauses left out
     result = run_script("ipg_her.py", tmp_path, *longer, "--nu", "0.8")
     assert_clean_error(result, "--nu 0.5", "now 0.8")
 

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, os.path.abspath(os.path.join(__file__, "../../..")))  # the project root
-from benchmarks.report import read_run  # noqa: E402
+from benchmarks.events import read_run  # noqa: E402
 
 COLUMNS = {"eval": "eval/success_rate", "entropy": "charts/policy_entropy", "alpha": "ipg/alpha",
            "beta": "losses/beta", "KL": "losses/approx_kl", "Q": "losses/q_values",
