@@ -11,7 +11,6 @@ read off its folder's name, which a resume keeps.
 
 import contextlib
 import hashlib
-import importlib.util
 import os
 
 INSTALL = "pip install wandb==0.31.0"
@@ -22,8 +21,11 @@ def refusal(args) -> str | None:
     """Why the ``--track`` flags cannot serve, or None: checked before any run folder exists."""
     if not args.track and (args.wandb_entity is not None or args.wandb_project_name != PROJECT):
         return "--wandb-project-name and --wandb-entity would be ignored without --track"
-    if args.track and importlib.util.find_spec("wandb") is None:
-        return f"--track needs wandb, which is not installed: {INSTALL}"
+    if args.track:
+        try:
+            import wandb  # noqa: F401  (a broken install fails here too, not mid-run)
+        except ImportError as e:
+            return f"--track needs wandb, which does not import ({e}): {INSTALL}"
     return None
 
 
@@ -58,8 +60,8 @@ def start(args, run_dir: str):
         with contextlib.suppress(Exception):
             wandb.tensorboard.unpatch()  # the writer as without --track
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        print(f"warning: --track: W&B did not start ({first}); the run goes on with TensorBoard "
-              "alone (WANDB_MODE=offline needs no account)", flush=True)  # fmt: skip
+        alone = "the run goes on with TensorBoard alone (WANDB_MODE=offline needs no account)"
+        print(f"warning: --track: W&B did not start ({first}); {alone}", flush=True)
         return None
     return wandb
 
