@@ -118,8 +118,15 @@ def without_wandb(tmp_path: Path) -> dict:
     return {"PYTHONPATH": str(tmp_path)}
 
 
-def test_track_without_wandb_is_one_line_before_any_run_folder(tmp_path):
-    result = tracked(tmp_path / "runs", *TINY, "--track", **without_wandb(tmp_path))
+def broken_wandb(tmp_path: Path) -> dict:
+    """An environment whose wandb is found but fails to import, as a broken install does."""
+    (tmp_path / "wandb.py").write_text("raise ImportError('a broken install')\n")
+    return {"PYTHONPATH": str(tmp_path)}
+
+
+@pytest.mark.parametrize("environment", [without_wandb, broken_wandb])
+def test_track_without_wandb_is_one_line_before_any_run_folder(tmp_path, environment):
+    result = tracked(tmp_path / "runs", *TINY, "--track", **environment(tmp_path))
     assert_clean_error(result, "--track needs wandb", "pip install wandb==0.31.0")
     assert not (tmp_path / "runs").exists()
 
