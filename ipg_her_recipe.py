@@ -165,49 +165,42 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
 
 def ignored(args: Args, goal_task: bool = True) -> dict[str, str]:
     """The flags this run would ignore, ``{flag: why}``: given on the command line, they fail."""
-    critic_flags = ("--critic-learning-rate --critic-batch-size --critic-steps --tau --buffer-size "
-                    "--learning-starts --q-bar --off-policy-states --off-policy-batch-size "
-                    "--normalization --diagnostics-every --action-l2 --bounds-loss "
-                    "--twin-critic")  # fmt: skip
+    critic_flags = "--critic-learning-rate --critic-batch-size --critic-steps --tau --buffer-size --learning-starts --q-bar "
+    critic_flags += f"--off-policy-states --off-policy-batch-size --normalization --diagnostics-every {her.FLAGS}"
+    critic_flags += " --action-l2 --bounds-loss --twin-critic"
+    no_critic = args.nu == 0 and not args.use_cv
     return her.ignored(args, args.env_id, goal_task) | cli.ignored(
         (not args.norm_adv, "--normalization", "--no-norm-adv: nothing to normalise"),
         (args.off_policy_states == "batch", "--off-policy-batch-size", "--off-policy-states batch"),
         (args.nu == 1 and args.use_cv, "--use-cv", "at --nu 1 its on-policy term has weight 0"),
-        (args.nu == 0 and not args.use_cv, f"{critic_flags} {her.FLAGS}",
-         "at --nu 0 without --use-cv no term uses the critic"),
-    )  # fmt: skip
+        (no_critic, critic_flags, "at --nu 0 without --use-cv no term uses the critic"),
+    )
 
 
 def check_args(args: Args, argv: list[str]) -> None:
     """Bad input fails here, before anything runs: one ``error:`` line (``common/cli.py``)."""
-    goal_task = cli.check_run(args)  # the run's own flags, the task and the budget
-    cli.check_positive(args, "num_minibatches", "update_epochs", "learning_rate", "kl_target")
-    cli.check_positive(args, "vf_coef", "max_grad_norm")  # <= 0: V unlearnt, reversed or frozen
-    cli.check_non_negative(args, "beta_init")
-    if args.kl_early_stop is not None:
-        cli.check_positive(args, "kl_early_stop")
-    cli.check_range(args, "gamma", 0.0, 1.0, open_low=True)
-    cli.check_range(args, "gae_lambda", 0.0, 1.0)
-    cli.check_minibatches(args.num_envs * args.num_steps, args.num_minibatches)
+    goal_task = cli.check_run(args)
+    cli.check_ppo_kl(args)
     cli.check_range(args, "nu", 0.0, 1.0)
     cli.check_non_negative(args, "critic_steps", "learning_starts", "action_l2", "bounds_loss")
     cli.refuse_ignored(argv, ignored(args, goal_task))
     cli.check_positive(args, "critic_learning_rate", "critic_batch_size", "buffer_size")
     cli.check_positive(args, "hidden", "off_policy_batch_size")
     batch = max(args.off_policy_batch_size, args.critic_batch_size, args.num_envs * args.num_steps)
-    cli.check_memory(4 * args.hidden * (20 * args.hidden + 16 * batch),
-                     f"--hidden {args.hidden} with batches of {batch:,} (the largest of "
-                     "--off-policy-batch-size, --critic-batch-size and the rollout)")  # fmt: skip
+    cli.check_memory(
+        4 * args.hidden * (20 * args.hidden + 16 * batch),
+        f"--hidden {args.hidden} with batches of {batch:,} (the largest of "
+        "--off-policy-batch-size, --critic-batch-size and the rollout)",
+    )
     cli.check_range(args, "tau", 0.0, 1.0, open_low=True)
     cli.refuse(buffer_refusal(args.buffer_size, args.num_envs, args.env_id))
     cli.refuse(her.check(args, args.env_id, goal_task))  # and on a task without goals: HER is off
     stds = () if args.target_std is None else tuple(np.atleast_1d(args.target_std))
     if min(stds, default=1.0) <= 0:
         cli.fail(f"--target-std must be positive, got {' '.join(map(str, stds))}")
-    if args.target_std is not None and len(stds) != 1:  # none (a bare --target-std) or several
+    if args.target_std is not None and len(stds) != 1:
         if len(stds) != (dims := gym.make(args.env_id).action_space.shape[0]):
-            cli.fail(f"--target-std takes one sigma or one per action dimension ({dims} on "
-                     f"{args.env_id}), not {len(stds)}")  # fmt: skip
+            cli.fail(f"--target-std takes one sigma or one per action dimension ({dims} on {args.env_id}), not {len(stds)}")
     cli.check_range(args, "grasped_start", 0.0, 1.0)
     cli.refuse(args.grasped_start and refusal(args.env_id))
 
@@ -235,16 +228,20 @@ class Agent(nn.Module):
     def __init__(self, obs_dim: int, act_dim: int, hidden: int = 64, init_log_std: float = 0.0):
         super().__init__()
         self.critic = nn.Sequential(
-            layer_init(nn.Linear(obs_dim, hidden)), nn.Tanh(),
-            layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
+            layer_init(nn.Linear(obs_dim, hidden)),
+            nn.Tanh(),
+            layer_init(nn.Linear(hidden, hidden)),
+            nn.Tanh(),
             layer_init(nn.Linear(hidden, 1), std=1.0),
-        )  # fmt: skip
+        )
         self.actor_mean = nn.Sequential(
-            layer_init(nn.Linear(obs_dim, hidden)), nn.Tanh(),
-            layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
+            layer_init(nn.Linear(obs_dim, hidden)),
+            nn.Tanh(),
+            layer_init(nn.Linear(hidden, hidden)),
+            nn.Tanh(),
             layer_init(nn.Linear(hidden, act_dim), std=0.01),
-        )  # fmt: skip
-        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))  # independent of s
+        )
+        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))
 
     def actor_parameters(self) -> list[nn.Parameter]:
         return [*self.actor_mean.parameters(), self.actor_logstd]
@@ -262,17 +259,18 @@ class QNetwork(nn.Module):
 
     def __init__(self, obs_dim, act_dim, hidden=128, low=-np.inf, high=np.inf, twin=False):
         super().__init__()
-        self.net, *twin_net = [nn.Sequential(
-            nn.Linear(obs_dim + act_dim, hidden), nn.ReLU(),
-            nn.Linear(hidden, hidden), nn.ReLU(),
-            nn.Linear(hidden, 1),
-        ) for _ in range(1 + twin)]  # fmt: skip
-        self.twin = nn.ModuleList(twin_net)  # empty without twin
+        self.net, *twin_net = [
+            nn.Sequential(
+                nn.Linear(obs_dim + act_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 1)
+            )
+            for _ in range(1 + twin)
+        ]
+        self.twin = nn.ModuleList(twin_net)
         self.register_buffer("low", torch.as_tensor(low, dtype=torch.float32).expand(act_dim))
         self.register_buffer("high", torch.as_tensor(high, dtype=torch.float32).expand(act_dim))
 
     def forward(self, x: torch.Tensor, a: torch.Tensor, both: bool = False):  # both: [Q_1, Q_2]
-        xa = torch.cat([x, torch.clamp(a, self.low, self.high)], -1)  # the executed action
+        xa = torch.cat([x, torch.clamp(a, self.low, self.high)], -1)
         qs = [net(xa).squeeze(-1) for net in (self.net, *self.twin)[: 2 if both else 1]]
         return qs if both else qs[0]
 
@@ -294,10 +292,15 @@ def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, rb, update_norm: 
     """
     T, N, act_dim = num_steps, envs.num_envs, envs.single_action_space.shape[0]
     low, high = envs.single_action_space.low, envs.single_action_space.high
-    obs_dim = norm(raw_obs).shape[-1]  # the policy's input
-    traj = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
-          "actions": torch.zeros((T, N, act_dim)), "rewards": torch.zeros((T, N)),
-          "terminations": torch.zeros((T, N)), "episode_ends": torch.zeros((T, N))}  # fmt: skip
+    obs_dim = norm(raw_obs).shape[-1]
+    traj = {
+        "obs": torch.zeros((T, N, obs_dim)),
+        "final_obs": torch.zeros((T, N, obs_dim)),
+        "actions": torch.zeros((T, N, act_dim)),
+        "rewards": torch.zeros((T, N)),
+        "terminations": torch.zeros((T, N)),
+        "episode_ends": torch.zeros((T, N)),
+    }
     episodes = []
     for t in range(T):
         if update_norm:
@@ -305,7 +308,7 @@ def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, rb, update_norm: 
         traj["obs"][t] = norm(raw_obs)
         with torch.no_grad():
             traj["actions"][t] = agent.dist(traj["obs"][t]).sample()  # a_t ~ pi_theta(.|s_t)
-        executed = np.clip(traj["actions"][t].numpy(), low, high)  # the env's action bounds
+        executed = np.clip(traj["actions"][t].numpy(), low, high)
         next_raw_obs, reward, terminated, truncated, infos = envs.step(executed)
         ended = terminated | truncated
         traj["rewards"][t] = torch.as_tensor(reward)
@@ -313,8 +316,8 @@ def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, rb, update_norm: 
         traj["episode_ends"][t] = torch.as_tensor(ended)
         real_next_obs = copy.deepcopy(next_raw_obs) if ended.any() else next_raw_obs
         for i in np.flatnonzero(ended):  # next_raw_obs[i] is the next episode's first
-            final = infos["final_obs"][i]  # its true last state
-            if isinstance(real_next_obs, dict):  # a goal task's Dict
+            final = infos["final_obs"][i]
+            if isinstance(real_next_obs, dict):
                 for key in real_next_obs:
                     real_next_obs[key][i] = final[key]
             else:
@@ -322,16 +325,14 @@ def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, rb, update_norm: 
             traj["final_obs"][t, i] = norm(final)
             info = infos["final_info"]
             success = next((float(info[k][i]) for k in SUCCESS_KEYS if k in info), None)
-            episodes.append((t, i, float(info["episode"]["r"][i]), int(info["episode"]["l"][i]),
-                             success))  # fmt: skip
+            episodes.append((t, i, float(info["episode"]["r"][i]), int(info["episode"]["l"][i]), success))
         rb.add(raw_obs, executed, reward, real_next_obs, terminated, truncated)
         raw_obs = next_raw_obs
     return traj, raw_obs, episodes
 
 
 # ALGO LOGIC: the critic step: DDPG's TD learning, eq. 6's soft target update
-def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent,
-                data: dict, gamma: float, tau: float, target_range=None):  # fmt: skip
+def critic_step(qf, qf_target, q_optimizer, agent, data, gamma, tau, target_range=None):
     """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
     with torch.no_grad():  # Q_w'(s', mu(s')); twin: the smaller of the two (TD3)
         next_q = qf_target(data["next_obs"], agent.actor_mean(data["next_obs"]), both=True)
@@ -362,11 +363,15 @@ def make_batch(agent: Agent, traj: dict, last_obs: torch.Tensor, gamma: float, l
         rewards, terminated = traj["rewards"], traj["terminations"]
         advantages = gae(rewards, values, next_values, terminated, ended, gamma, lam)  # eq. 4
         pi_old = agent.dist(traj["obs"])
-        return {"obs": traj["obs"].flatten(0, 1), "actions": traj["actions"].flatten(0, 1),
-                "logprobs": pi_old.log_prob(traj["actions"]).sum(-1).flatten(),
-                "mean": pi_old.mean.flatten(0, 1), "std": pi_old.stddev.flatten(0, 1),
-                "advantages": advantages.flatten(),
-                "returns": (advantages + values).flatten()}  # fmt: skip
+        return {
+            "obs": traj["obs"].flatten(0, 1),
+            "actions": traj["actions"].flatten(0, 1),
+            "logprobs": pi_old.log_prob(traj["actions"]).sum(-1).flatten(),
+            "mean": pi_old.mean.flatten(0, 1),
+            "std": pi_old.stddev.flatten(0, 1),
+            "advantages": advantages.flatten(),
+            "returns": (advantages + values).flatten(),
+        }
 
 
 # ALGO LOGIC: the control variate (eq. 9)
@@ -377,8 +382,9 @@ def control_variate(qf: QNetwork, agent: Agent, obs: torch.Tensor, actions: torc
     return (grad_q * (actions - mu)).sum(-1).detach()
 
 
-def ipg_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, adv=None, s_off=None,
-             q_bar: str = "mean", generator=None) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+def ipg_loss(
+    agent: Agent, qf: QNetwork, pi: Normal, mb: dict, adv=None, s_off=None, q_bar: str = "mean", generator=None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Eq. 10's two terms on a minibatch ``mb`` as losses (``pi = agent.dist(mb["obs"])``): -E[r_t
     adv_t] (eq. 5's; 0 without ``adv``) and -E_{s ~ beta}[Q_bar_w(s)] on ``s_off`` (0 without)."""
     on_term = off_term = torch.zeros(())
@@ -395,9 +401,8 @@ def ipg_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, adv=None, s_off=N
 
 def learning_signal(batch: dict, args: Args):
     """The update's weights: the signal, normalised; its raw std; the critic term's b and scale."""
-    adv = batch["advantages"]  # A_hat
-    adv = adv - batch["cv"] if "cv" in batch else adv  # minus A_bar with the control variate
-    off_scale, signal_std = 1.0, adv.std()  # on the raw scale
+    adv = batch["advantages"] - batch["cv"] if "cv" in batch else batch["advantages"]  # A_hat, or A_hat - A_bar (eq. 9)
+    off_scale, signal_std = 1.0, adv.std()
     if args.norm_adv:
         adv = (adv - adv.mean()) / (signal_std + 1e-8)
         if args.normalization == "unbiased":
@@ -406,8 +411,7 @@ def learning_signal(batch: dict, args: Args):
 
 
 # DIAGNOSTICS: the mixture, measured on the batch before the update
-def interpolation_report(agent: Agent, qf: QNetwork, batch: dict, args: Args, replay, run,
-                         chunks: int = 4) -> dict:  # fmt: skip
+def interpolation_report(agent: Agent, qf: QNetwork, batch: dict, args: Args, replay, run, chunks: int = 4) -> dict:
     """The update's two weighted terms on ``batch`` at theta = theta_old, through its own
     ``learning_signal`` and ``ipg_loss``: their gradient norms (1 - nu) |g_on| and b |g_off|, and
     ``effective_nu`` = |off| / (|on| + |off|), the share the off-policy term really has; then
@@ -416,19 +420,16 @@ def interpolation_report(agent: Agent, qf: QNetwork, batch: dict, args: Args, re
     diagnostics streams, so that measuring never moves the training's."""
     generator = run.diagnostics_generator
     cv = batch["cv"] if args.use_cv else control_variate(qf, agent, batch["obs"], batch["actions"])
-    off_states = batch["obs"] if args.off_policy_states == "batch" else replay(
-        1, run.diagnostics_rng)[0]["obs"]  # fmt: skip
+    off_states = batch["obs"] if args.off_policy_states == "batch" else replay(1, run.diagnostics_rng)[0]["obs"]
     params = agent.actor_parameters()
-    signal, _, off_weight, off_scale = learning_signal(batch, args)  # the update's own
-    on_term, off_term = ipg_loss(agent, qf, agent.dist(batch["obs"]), batch, signal, off_states,
-                                 args.q_bar, generator)  # fmt: skip
+    signal, _, off_weight, off_scale = learning_signal(batch, args)
+    on_term, off_term = ipg_loss(agent, qf, agent.dist(batch["obs"]), batch, signal, off_states, args.q_bar, generator)
     on = (1.0 - args.nu) * diagnostics.flat_grad(on_term, params).norm().item()
     off = off_weight * diagnostics.flat_grad(off_term * off_scale, params).norm().item()
 
     def estimate(mb: dict, with_cv: bool):  # eq. 8 at eta = 1 or 0, on the raw scale
         adv = mb["advantages"] - mb["cv"] if with_cv else mb["advantages"]
-        on_term, off_term = ipg_loss(agent, qf, agent.dist(mb["obs"]), mb, adv,
-                                     mb["obs"] if with_cv else None)  # fmt: skip
+        on_term, off_term = ipg_loss(agent, qf, agent.dist(mb["obs"]), mb, adv, mb["obs"] if with_cv else None)
         return on_term + off_term
 
     measured = {"on_grad_norm": on, "off_grad_norm": off, "effective_nu": off / (on + off + 1e-12)}
@@ -436,8 +437,16 @@ def interpolation_report(agent: Agent, qf: QNetwork, batch: dict, args: Args, re
 
 
 # ALGO LOGIC: the IPG update (eq. 10) on the PPO-KL surrogate (eq. 5)
-def ipg_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: float, args: Args,
-               qf: QNetwork | None = None, replay=None, alpha=0.0):  # fmt: skip
+def ipg_update(
+    agent: Agent,
+    optimizer: optim.Optimizer,
+    batch: dict,
+    beta: float,
+    args: Args,
+    qf: QNetwork | None = None,
+    replay=None,
+    alpha=0.0,
+):
     """Eq. 10 inside eq. 5: ``update_epochs`` passes of Adam, then the beta rule."""
     batch_size = batch["obs"].shape[0]
     minibatch_size = batch_size // args.num_minibatches
@@ -448,18 +457,17 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: floa
     pi_old = Normal(batch["mean"], batch["std"])
     actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
     for epoch in range(args.update_epochs):
-        perm = torch.randperm(batch_size)  # once per epoch: the minibatches are then views
+        perm = torch.randperm(batch_size)
         keys = ("obs", "actions", "logprobs", "mean", "std", "returns")
         shuffled = {key: batch[key][perm] for key in keys} | {"adv": adv[perm]}
         for start in range(0, batch_size, minibatch_size):
             mb = {key: v[start : start + minibatch_size] for key, v in shuffled.items()}
             pi = agent.dist(mb["obs"])
-            kl = kl_divergence(Normal(mb["mean"], mb["std"]), pi).sum(-1).mean()  # analytic
+            kl = kl_divergence(Normal(mb["mean"], mb["std"]), pi).sum(-1).mean()
             s_off = next(replayed)["obs"] if from_replay else mb["obs"] if use_off_policy else None
-            on_term, off_term = ipg_loss(agent, qf, pi, mb, mb["adv"] if args.nu < 1 else None,
-                                         s_off, args.q_bar)  # fmt: skip
+            on_term, off_term = ipg_loss(agent, qf, pi, mb, mb["adv"] if args.nu < 1 else None, s_off, args.q_bar)
             pg_loss = beta * kl + (1.0 - args.nu) * on_term + off_weight * off_scale * off_term
-            if s_off is not None and (args.action_l2 or args.bounds_loss):  # mu(s) in the bounds
+            if s_off is not None and (args.action_l2 or args.bounds_loss):
                 mu = agent.actor_mean(s_off)  # OpenAI's HER: l2 mu(s)^2; rl_games: beyond bounds
                 beyond = mu - mu.clamp(qf.low, qf.high)  # zero inside: there Q_w's gradient lives
                 pg_loss += args.action_l2 * (mu**2).mean() + args.bounds_loss * (beyond**2).mean()
@@ -468,8 +476,8 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: floa
             v_loss = 0.5 * ((agent.get_value(mb["obs"]) - mb["returns"]) ** 2).mean()
             optimizer.zero_grad()
             (pg_loss + args.vf_coef * v_loss).backward()
-            nn.utils.clip_grad_norm_(actor_params, args.max_grad_norm)  # policy and
-            nn.utils.clip_grad_norm_(critic_params, args.max_grad_norm)  # V apart
+            nn.utils.clip_grad_norm_(actor_params, args.max_grad_norm)
+            nn.utils.clip_grad_norm_(critic_params, args.max_grad_norm)
             optimizer.step()
         if args.kl_early_stop is not None:
             with torch.no_grad():
@@ -480,11 +488,19 @@ def ipg_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: floa
         pi = agent.dist(batch["obs"])
         d = kl_divergence(pi_old, pi).sum(-1).mean().item()  # d: mean KL[pi_old || pi]
         entropy = pi.entropy().sum(-1).mean().item()
-    stats = {"losses/policy_loss": pg_loss.item(), "losses/value_loss": v_loss.item(),
-             "losses/approx_kl": d, "losses/beta": beta, "losses/epochs": epoch + 1,
-             "charts/policy_entropy": entropy, "ipg/signal_std": signal_std.item(),
-             "ipg/on_policy_term": on_term.item(), "ipg/nu": args.nu,
-             "ipg/off_policy_term": off_term.item(), "ipg/alpha": np.mean(alpha)}  # fmt: skip
+    stats = {
+        "losses/policy_loss": pg_loss.item(),
+        "losses/value_loss": v_loss.item(),
+        "losses/approx_kl": d,
+        "losses/beta": beta,
+        "losses/epochs": epoch + 1,
+        "charts/policy_entropy": entropy,
+        "ipg/signal_std": signal_std.item(),
+        "ipg/on_policy_term": on_term.item(),
+        "ipg/nu": args.nu,
+        "ipg/off_policy_term": off_term.item(),
+        "ipg/alpha": np.mean(alpha),
+    }
     if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
         beta /= 2
     elif d > args.kl_target * 1.5:
@@ -508,8 +524,9 @@ if __name__ == "__main__":
     run = Run(args)  # TRY NOT TO MODIFY: run folder, TensorBoard, seeding (common/run.py)
 
     # ENV SETUP: N envs stepped in turn, SAME_STEP autoreset (see rollout)
-    envs = gym.vector.SyncVectorEnv([make_env(args.env_id, args.grasped_start)] * args.num_envs,
-                                    autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)  # fmt: skip
+    envs = gym.vector.SyncVectorEnv(
+        [make_env(args.env_id, args.grasped_start)] * args.num_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP
+    )
     space = envs.single_observation_space
     goal_dim = space["desired_goal"].shape[0] if isinstance(space, gym.spaces.Dict) else 0
     obs_dim = space["observation"].shape[0] if goal_dim else space.shape[0]
@@ -529,23 +546,29 @@ if __name__ == "__main__":
     if goal_dim:  # hindsight relabelling (Figure 2) needs the task's reward function
         compute_reward = goal_task_reward(args.env_id, args.her)
         q_range = sparse_return_range(compute_reward, goal_dim, args.gamma)
-        rb = HerReplayBuffer(args.buffer_size, args.num_envs, obs_dim, act_dim, goal_dim,
-                             compute_reward, args.her_n_sampled_goal if args.her else 0,
-                             args.her_goal_selection_strategy, run.streams.replay_seed)  # fmt: skip
+        rb = HerReplayBuffer(
+            args.buffer_size,
+            args.num_envs,
+            obs_dim,
+            act_dim,
+            goal_dim,
+            compute_reward,
+            args.her_n_sampled_goal if args.her else 0,
+            args.her_goal_selection_strategy,
+            run.streams.replay_seed,
+        )
     replay = lambda n, rng=None: sample_replay(rb, norm, 1.0, args.off_policy_batch_size, n, rng)
     reward_scaler = RewardScaler(args.num_envs, args.gamma)
     # what model.pt keeps, and what else resume.pt needs to go on
     model = dict(agent=agent, normalizer=norm, qf=qf, qf_target=qf_target)
-    training = dict(
-        optimizer=optimizer, reward_scaler=reward_scaler, q_optimizer=q_optimizer, rb=rb
-    )
+    training = dict(optimizer=optimizer, reward_scaler=reward_scaler, q_optimizer=q_optimizer, rb=rb)
     run.start(envs, model, training)  # TRY NOT TO MODIFY: --resume restores them all
 
     # TRY NOT TO MODIFY: start the game (a resumed run goes on where its resume point left it)
     global_step, beta = run.global_step, run.restored("beta", args.beta_init)
     alpha = run.restored("alpha", 0.0)  # the sigma rule's multiplier (sigma_rule)
     if run.resumed:
-        raw_obs = run.resumed_obs  # the envs mid-episode, as they were
+        raw_obs = run.resumed_obs
     else:
         raw_obs, _ = envs.reset(seed=run.streams.env_seeds)
 
@@ -557,8 +580,7 @@ if __name__ == "__main__":
                 q_optimizer.param_groups[0]["lr"] = frac * args.critic_learning_rate
 
             # ALGO LOGIC: rollout
-            traj, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
-                                              update_norm=args.norm_obs)  # fmt: skip
+            traj, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps, rb, update_norm=args.norm_obs)
             global_step += args.num_envs * args.num_steps
             run.record_episodes(episodes, global_step)
 
@@ -573,11 +595,9 @@ if __name__ == "__main__":
             critic_ready = (args.nu > 0 or args.use_cv) and global_step >= args.learning_starts
             critic_ready = critic_ready and rb.num_sampleable() > 0
             if critic_ready and args.critic_steps > 0:
-                target_range = (q_range[0] * reward_scale, 0.0) if q_range else None  # clipped
-                for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size,
-                                          args.critic_steps):  # fmt: skip
-                    q_loss, q_mean = critic_step(qf, qf_target, q_optimizer, agent, data,
-                                                 args.gamma, args.tau, target_range)  # fmt: skip
+                target_range = (q_range[0] * reward_scale, 0.0) if q_range else None
+                for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size, args.critic_steps):
+                    q_loss, q_mean = critic_step(qf, qf_target, q_optimizer, agent, data, args.gamma, args.tau, target_range)
                 run.log({"losses/critic_loss": q_loss, "losses/q_values": q_mean})
 
             # ALGO LOGIC: advantages (eq. 3-4) and the control variate (eq. 9)

@@ -80,22 +80,15 @@ class Args(RunArgs):
 
 def check_args(args: Args) -> None:
     """Bad input fails here, before anything runs: one ``error:`` line (``common/cli.py``)."""
-    cli.check_run(args)  # the run's own flags, the task and the budget
-    cli.check_positive(args, "num_minibatches", "update_epochs", "learning_rate", "kl_target")
-    cli.check_positive(args, "vf_coef", "max_grad_norm")  # <= 0: V unlearnt, reversed or frozen
-    cli.check_non_negative(args, "beta_init")
-    if args.kl_early_stop is not None:
-        cli.check_positive(args, "kl_early_stop")
-    cli.check_range(args, "gamma", 0.0, 1.0, open_low=True)
-    cli.check_range(args, "gae_lambda", 0.0, 1.0)
-    cli.check_minibatches(args.num_envs * args.num_steps, args.num_minibatches)
+    cli.check_run(args)
+    cli.check_ppo_kl(args)
 
 
 # ENV SETUP
 def make_env(env_id: str):
     def thunk():
         env = gym.make(env_id)
-        if isinstance(env.observation_space, gym.spaces.Dict):  # goal task: one flat policy input
+        if isinstance(env.observation_space, gym.spaces.Dict):
             env = gym.wrappers.FlattenObservation(env)  # [achieved_goal, desired_goal, observation]
         return gym.wrappers.RecordEpisodeStatistics(env)
 
@@ -115,16 +108,20 @@ class Agent(nn.Module):
     def __init__(self, obs_dim: int, act_dim: int, hidden: int = 64, init_log_std: float = 0.0):
         super().__init__()
         self.critic = nn.Sequential(
-            layer_init(nn.Linear(obs_dim, hidden)), nn.Tanh(),
-            layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
+            layer_init(nn.Linear(obs_dim, hidden)),
+            nn.Tanh(),
+            layer_init(nn.Linear(hidden, hidden)),
+            nn.Tanh(),
             layer_init(nn.Linear(hidden, 1), std=1.0),
-        )  # fmt: skip
+        )
         self.actor_mean = nn.Sequential(
-            layer_init(nn.Linear(obs_dim, hidden)), nn.Tanh(),
-            layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
+            layer_init(nn.Linear(obs_dim, hidden)),
+            nn.Tanh(),
+            layer_init(nn.Linear(hidden, hidden)),
+            nn.Tanh(),
             layer_init(nn.Linear(hidden, act_dim), std=0.01),
-        )  # fmt: skip
-        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))  # independent of s
+        )
+        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))
 
     def actor_parameters(self) -> list[nn.Parameter]:
         return [*self.actor_mean.parameters(), self.actor_logstd]
@@ -150,10 +147,15 @@ def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, update_norm: bool
     """
     T, N, act_dim = num_steps, envs.num_envs, envs.single_action_space.shape[0]
     low, high = envs.single_action_space.low, envs.single_action_space.high
-    obs_dim = norm(raw_obs).shape[-1]  # the policy's input
-    traj = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
-          "actions": torch.zeros((T, N, act_dim)), "rewards": torch.zeros((T, N)),
-          "terminations": torch.zeros((T, N)), "episode_ends": torch.zeros((T, N))}  # fmt: skip
+    obs_dim = norm(raw_obs).shape[-1]
+    traj = {
+        "obs": torch.zeros((T, N, obs_dim)),
+        "final_obs": torch.zeros((T, N, obs_dim)),
+        "actions": torch.zeros((T, N, act_dim)),
+        "rewards": torch.zeros((T, N)),
+        "terminations": torch.zeros((T, N)),
+        "episode_ends": torch.zeros((T, N)),
+    }
     episodes = []
     for t in range(T):
         if update_norm:
@@ -161,7 +163,7 @@ def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, update_norm: bool
         traj["obs"][t] = norm(raw_obs)
         with torch.no_grad():
             traj["actions"][t] = agent.dist(traj["obs"][t]).sample()  # a_t ~ pi_theta(.|s_t)
-        executed = np.clip(traj["actions"][t].numpy(), low, high)  # the env's action bounds
+        executed = np.clip(traj["actions"][t].numpy(), low, high)
         next_raw_obs, reward, terminated, truncated, infos = envs.step(executed)
         ended = terminated | truncated
         traj["rewards"][t] = torch.as_tensor(reward)
@@ -171,8 +173,7 @@ def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, update_norm: bool
             traj["final_obs"][t, i] = norm(infos["final_obs"][i])
             info = infos["final_info"]
             success = next((float(info[k][i]) for k in SUCCESS_KEYS if k in info), None)
-            episodes.append((t, i, float(info["episode"]["r"][i]), int(info["episode"]["l"][i]),
-                             success))  # fmt: skip
+            episodes.append((t, i, float(info["episode"]["r"][i]), int(info["episode"]["l"][i]), success))
         raw_obs = next_raw_obs
     return traj, raw_obs, episodes
 
@@ -190,11 +191,15 @@ def make_batch(agent: Agent, traj: dict, last_obs: torch.Tensor, gamma: float, l
         rewards, terminated = traj["rewards"], traj["terminations"]
         advantages = gae(rewards, values, next_values, terminated, ended, gamma, lam)  # eq. 4
         pi_old = agent.dist(traj["obs"])
-        return {"obs": traj["obs"].flatten(0, 1), "actions": traj["actions"].flatten(0, 1),
-                "logprobs": pi_old.log_prob(traj["actions"]).sum(-1).flatten(),
-                "mean": pi_old.mean.flatten(0, 1), "std": pi_old.stddev.flatten(0, 1),
-                "advantages": advantages.flatten(),
-                "returns": (advantages + values).flatten()}  # fmt: skip
+        return {
+            "obs": traj["obs"].flatten(0, 1),
+            "actions": traj["actions"].flatten(0, 1),
+            "logprobs": pi_old.log_prob(traj["actions"]).sum(-1).flatten(),
+            "mean": pi_old.mean.flatten(0, 1),
+            "std": pi_old.stddev.flatten(0, 1),
+            "advantages": advantages.flatten(),
+            "returns": (advantages + values).flatten(),
+        }
 
 
 # ALGO LOGIC: the PPO-KL update (eq. 5)
@@ -209,20 +214,20 @@ def ppo_kl_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: f
     pi_old = Normal(batch["mean"], batch["std"])
     actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
     for epoch in range(args.update_epochs):
-        perm = torch.randperm(batch_size)  # once per epoch: the minibatches are then views
+        perm = torch.randperm(batch_size)
         keys = ("obs", "actions", "logprobs", "mean", "std", "returns")
         shuffled = {key: batch[key][perm] for key in keys} | {"adv": adv[perm]}
         for start in range(0, batch_size, minibatch_size):
             mb = {key: v[start : start + minibatch_size] for key, v in shuffled.items()}
             pi = agent.dist(mb["obs"])
             ratio = (pi.log_prob(mb["actions"]).sum(-1) - mb["logprobs"]).exp()  # r_t(theta)
-            kl = kl_divergence(Normal(mb["mean"], mb["std"]), pi).sum(-1).mean()  # analytic
+            kl = kl_divergence(Normal(mb["mean"], mb["std"]), pi).sum(-1).mean()
             pg_loss = -(ratio * mb["adv"]).mean() + beta * kl  # eq. 5, negated
             v_loss = 0.5 * ((agent.get_value(mb["obs"]) - mb["returns"]) ** 2).mean()
             optimizer.zero_grad()
             (pg_loss + args.vf_coef * v_loss).backward()
-            nn.utils.clip_grad_norm_(actor_params, args.max_grad_norm)  # policy and
-            nn.utils.clip_grad_norm_(critic_params, args.max_grad_norm)  # V apart
+            nn.utils.clip_grad_norm_(actor_params, args.max_grad_norm)
+            nn.utils.clip_grad_norm_(critic_params, args.max_grad_norm)
             optimizer.step()
         if args.kl_early_stop is not None:
             with torch.no_grad():
@@ -233,9 +238,14 @@ def ppo_kl_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: f
         pi = agent.dist(batch["obs"])
         d = kl_divergence(pi_old, pi).sum(-1).mean().item()  # d: mean KL[pi_old || pi]
         entropy = pi.entropy().sum(-1).mean().item()
-    stats = {"losses/policy_loss": pg_loss.item(), "losses/value_loss": v_loss.item(),
-             "losses/approx_kl": d, "losses/beta": beta, "losses/epochs": epoch + 1,
-             "charts/policy_entropy": entropy}  # fmt: skip
+    stats = {
+        "losses/policy_loss": pg_loss.item(),
+        "losses/value_loss": v_loss.item(),
+        "losses/approx_kl": d,
+        "losses/beta": beta,
+        "losses/epochs": epoch + 1,
+        "charts/policy_entropy": entropy,
+    }
     if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
         beta /= 2
     elif d > args.kl_target * 1.5:
@@ -251,8 +261,7 @@ if __name__ == "__main__":
     run = Run(args)  # TRY NOT TO MODIFY: run folder, TensorBoard, seeding (common/run.py)
 
     # ENV SETUP: N envs stepped in turn, SAME_STEP autoreset (see rollout)
-    envs = gym.vector.SyncVectorEnv([make_env(args.env_id)] * args.num_envs,
-                                    autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)  # fmt: skip
+    envs = gym.vector.SyncVectorEnv([make_env(args.env_id)] * args.num_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
     obs_dim = envs.single_observation_space.shape[0]
     act_dim = envs.single_action_space.shape[0]
     envs.single_action_space.seed(run.streams.action_space_seed)
@@ -270,7 +279,7 @@ if __name__ == "__main__":
     # TRY NOT TO MODIFY: start the game (a resumed run goes on where its resume point left it)
     global_step, beta = run.global_step, run.restored("beta", args.beta_init)
     if run.resumed:
-        raw_obs = run.resumed_obs  # the envs mid-episode, as they were
+        raw_obs = run.resumed_obs
     else:
         raw_obs, _ = envs.reset(seed=run.streams.env_seeds)
 
@@ -281,8 +290,7 @@ if __name__ == "__main__":
                 optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
             # ALGO LOGIC: rollout
-            traj, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps,
-                                              update_norm=args.norm_obs)  # fmt: skip
+            traj, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps, update_norm=args.norm_obs)
             global_step += args.num_envs * args.num_steps
             run.record_episodes(episodes, global_step)
 

@@ -83,9 +83,9 @@ class Args(RunArgs):
     """divide rewards by the running std of the discounted return (not Fetch's 0 / -1)"""
 
     # Q-Prop arguments
-    eta_mode: Literal[
-        "batch-conservative", "batch-aggressive", "conservative", "aggressive", "ones", "none"
-    ] = "batch-conservative"
+    eta_mode: Literal["batch-conservative", "batch-aggressive", "conservative", "aggressive", "ones", "none"] = (
+        "batch-conservative"
+    )
     """control-variate weight eta: from the batch covariance's sign (unbiased), per sample (the
     paper's, biased), 1, or none (= PPO-KL)"""
     normalization: Literal["paper", "unbiased"] = "unbiased"
@@ -108,27 +108,24 @@ class Args(RunArgs):
 
 def check_args(args: Args, argv: list[str]) -> None:
     """Bad input fails here, before anything runs: one ``error:`` line (``common/cli.py``)."""
-    cli.check_run(args)  # the run's own flags, the task and the budget
-    cli.check_positive(args, "num_minibatches", "update_epochs", "learning_rate", "kl_target")
-    cli.check_positive(args, "vf_coef", "max_grad_norm")  # <= 0: V unlearnt, reversed or frozen
-    cli.check_non_negative(args, "beta_init")
-    if args.kl_early_stop is not None:
-        cli.check_positive(args, "kl_early_stop")
-    cli.check_range(args, "gamma", 0.0, 1.0, open_low=True)
-    cli.check_range(args, "gae_lambda", 0.0, 1.0)
-    cli.check_minibatches(args.num_envs * args.num_steps, args.num_minibatches)
+    cli.check_run(args)
+    cli.check_ppo_kl(args)
     cli.check_non_negative(args, "critic_steps", "learning_starts")
-    critic_flags = ("--critic-learning-rate --critic-batch-size --critic-steps --tau --buffer-size "
-                    "--learning-starts --critic-hidden --normalization")  # fmt: skip
-    cli.refuse_ignored(argv, cli.ignored(
-        (not args.norm_adv, "--normalization", "--no-norm-adv: nothing to normalise"),
-        (args.eta_mode == "none", critic_flags, "--eta-mode none trains no critic"),
-    ))  # fmt: skip
+    critic_flags = (
+        "--critic-learning-rate --critic-batch-size --critic-steps --tau --buffer-size "
+        "--learning-starts --critic-hidden --normalization"
+    )
+    cli.refuse_ignored(
+        argv,
+        cli.ignored(
+            (not args.norm_adv, "--normalization", "--no-norm-adv: nothing to normalise"),
+            (args.eta_mode == "none", critic_flags, "--eta-mode none trains no critic"),
+        ),
+    )
     cli.check_positive(args, "critic_learning_rate", "critic_batch_size", "buffer_size")
     cli.check_positive(args, "critic_hidden")
     hidden, batch = args.critic_hidden, args.critic_batch_size
-    cli.check_memory(4 * hidden * (20 * hidden + 16 * batch),
-                     f"--critic-hidden {hidden} with --critic-batch-size {batch:,}")  # fmt: skip
+    cli.check_memory(4 * hidden * (20 * hidden + 16 * batch), f"--critic-hidden {hidden} with --critic-batch-size {batch:,}")
     cli.check_range(args, "tau", 0.0, 1.0, open_low=True)
     cli.refuse(buffer_refusal(args.buffer_size, args.num_envs, args.env_id))
 
@@ -137,7 +134,7 @@ def check_args(args: Args, argv: list[str]) -> None:
 def make_env(env_id: str):
     def thunk():
         env = gym.make(env_id)
-        if isinstance(env.observation_space, gym.spaces.Dict):  # goal task: one flat policy input
+        if isinstance(env.observation_space, gym.spaces.Dict):
             env = gym.wrappers.FlattenObservation(env)  # [achieved_goal, desired_goal, observation]
         return gym.wrappers.RecordEpisodeStatistics(env)
 
@@ -157,16 +154,20 @@ class Agent(nn.Module):
     def __init__(self, obs_dim: int, act_dim: int, hidden: int = 64, init_log_std: float = 0.0):
         super().__init__()
         self.critic = nn.Sequential(
-            layer_init(nn.Linear(obs_dim, hidden)), nn.Tanh(),
-            layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
+            layer_init(nn.Linear(obs_dim, hidden)),
+            nn.Tanh(),
+            layer_init(nn.Linear(hidden, hidden)),
+            nn.Tanh(),
             layer_init(nn.Linear(hidden, 1), std=1.0),
-        )  # fmt: skip
+        )
         self.actor_mean = nn.Sequential(
-            layer_init(nn.Linear(obs_dim, hidden)), nn.Tanh(),
-            layer_init(nn.Linear(hidden, hidden)), nn.Tanh(),
+            layer_init(nn.Linear(obs_dim, hidden)),
+            nn.Tanh(),
+            layer_init(nn.Linear(hidden, hidden)),
+            nn.Tanh(),
             layer_init(nn.Linear(hidden, act_dim), std=0.01),
-        )  # fmt: skip
-        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))  # independent of s
+        )
+        self.actor_logstd = nn.Parameter(torch.full((1, act_dim), init_log_std))
 
     def actor_parameters(self) -> list[nn.Parameter]:
         return [*self.actor_mean.parameters(), self.actor_logstd]
@@ -185,10 +186,8 @@ class QNetwork(nn.Module):
     def __init__(self, obs_dim, act_dim, hidden=128, low=-np.inf, high=np.inf):
         super().__init__()
         self.net = nn.Sequential(
-            nn.Linear(obs_dim + act_dim, hidden), nn.ReLU(),
-            nn.Linear(hidden, hidden), nn.ReLU(),
-            nn.Linear(hidden, 1),
-        )  # fmt: skip
+            nn.Linear(obs_dim + act_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 1)
+        )
         self.register_buffer("low", torch.as_tensor(low, dtype=torch.float32).expand(act_dim))
         self.register_buffer("high", torch.as_tensor(high, dtype=torch.float32).expand(act_dim))
 
@@ -213,10 +212,15 @@ def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, rb, update_norm: 
     """
     T, N, act_dim = num_steps, envs.num_envs, envs.single_action_space.shape[0]
     low, high = envs.single_action_space.low, envs.single_action_space.high
-    obs_dim = norm(raw_obs).shape[-1]  # the policy's input
-    traj = {"obs": torch.zeros((T, N, obs_dim)), "final_obs": torch.zeros((T, N, obs_dim)),
-          "actions": torch.zeros((T, N, act_dim)), "rewards": torch.zeros((T, N)),
-          "terminations": torch.zeros((T, N)), "episode_ends": torch.zeros((T, N))}  # fmt: skip
+    obs_dim = norm(raw_obs).shape[-1]
+    traj = {
+        "obs": torch.zeros((T, N, obs_dim)),
+        "final_obs": torch.zeros((T, N, obs_dim)),
+        "actions": torch.zeros((T, N, act_dim)),
+        "rewards": torch.zeros((T, N)),
+        "terminations": torch.zeros((T, N)),
+        "episode_ends": torch.zeros((T, N)),
+    }
     episodes = []
     for t in range(T):
         if update_norm:
@@ -224,28 +228,28 @@ def rollout(envs, agent: Agent, norm, raw_obs, num_steps: int, rb, update_norm: 
         traj["obs"][t] = norm(raw_obs)
         with torch.no_grad():
             traj["actions"][t] = agent.dist(traj["obs"][t]).sample()  # a_t ~ pi_theta(.|s_t)
-        executed = np.clip(traj["actions"][t].numpy(), low, high)  # the env's action bounds
+        executed = np.clip(traj["actions"][t].numpy(), low, high)
         next_raw_obs, reward, terminated, truncated, infos = envs.step(executed)
         ended = terminated | truncated
         traj["rewards"][t] = torch.as_tensor(reward)
         traj["terminations"][t] = torch.as_tensor(terminated)
         traj["episode_ends"][t] = torch.as_tensor(ended)
         real_next_obs = next_raw_obs.copy()  # where an episode ended: its true last state
-        for i in np.flatnonzero(ended):  # next_raw_obs[i] is the next episode's first
+        for i in np.flatnonzero(ended):
             real_next_obs[i] = infos["final_obs"][i]
             traj["final_obs"][t, i] = norm(infos["final_obs"][i])
             info = infos["final_info"]
             success = next((float(info[k][i]) for k in SUCCESS_KEYS if k in info), None)
-            episodes.append((t, i, float(info["episode"]["r"][i]), int(info["episode"]["l"][i]),
-                             success))  # fmt: skip
+            episodes.append((t, i, float(info["episode"]["r"][i]), int(info["episode"]["l"][i]), success))
         rb.add(raw_obs, executed, reward, real_next_obs, terminated, truncated)
         raw_obs = next_raw_obs
     return traj, raw_obs, episodes
 
 
 # ALGO LOGIC: the critic step: DDPG's TD learning, eq. 6's soft target update
-def critic_step(qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent,
-                data: dict, gamma: float, tau: float) -> tuple[float, float]:  # fmt: skip
+def critic_step(
+    qf: QNetwork, qf_target: QNetwork, q_optimizer: optim.Optimizer, agent: Agent, data: dict, gamma: float, tau: float
+) -> tuple[float, float]:
     """One step of TD learning on a replay batch ``data``, then the soft target update (eq. 6)."""
     with torch.no_grad():  # Q_w'(s', mu(s'))
         next_q = qf_target(data["next_obs"], agent.actor_mean(data["next_obs"]))
@@ -274,11 +278,15 @@ def make_batch(agent: Agent, traj: dict, last_obs: torch.Tensor, gamma: float, l
         rewards, terminated = traj["rewards"], traj["terminations"]
         advantages = gae(rewards, values, next_values, terminated, ended, gamma, lam)  # eq. 4
         pi_old = agent.dist(traj["obs"])
-        return {"obs": traj["obs"].flatten(0, 1), "actions": traj["actions"].flatten(0, 1),
-                "logprobs": pi_old.log_prob(traj["actions"]).sum(-1).flatten(),
-                "mean": pi_old.mean.flatten(0, 1), "std": pi_old.stddev.flatten(0, 1),
-                "advantages": advantages.flatten(),
-                "returns": (advantages + values).flatten()}  # fmt: skip
+        return {
+            "obs": traj["obs"].flatten(0, 1),
+            "actions": traj["actions"].flatten(0, 1),
+            "logprobs": pi_old.log_prob(traj["actions"]).sum(-1).flatten(),
+            "mean": pi_old.mean.flatten(0, 1),
+            "std": pi_old.stddev.flatten(0, 1),
+            "advantages": advantages.flatten(),
+            "returns": (advantages + values).flatten(),
+        }
 
 
 # ALGO LOGIC: the control variate (eq. 9) and its weight eta
@@ -323,9 +331,9 @@ def learning_signal(batch: dict, args: Args):
     """The update's weights: the learning signal, normalised, its raw std sigma, and the critic's
     term's weights: eta (the signal is A_hat - eta A_bar) and its scale (``normalization``)."""
     eta = batch["eta"] if "eta" in batch else torch.zeros_like(batch["advantages"])
-    adv = batch["advantages"]  # A_hat
+    adv = batch["advantages"]
     adv = adv - eta * batch["cv"] if "cv" in batch else adv  # A_hat - eta A_bar
-    analytic_scale, signal_std = 1.0, adv.std()  # on the raw scale
+    analytic_scale, signal_std = 1.0, adv.std()
     if args.norm_adv:
         adv = (adv - adv.mean()) / (signal_std + 1e-8)
         if args.normalization == "unbiased":
@@ -348,8 +356,7 @@ def qprop_report(agent: Agent, qf: QNetwork, batch: dict, generator=None, chunks
 
 
 # ALGO LOGIC: the Q-Prop update: PPO-KL (eq. 5) with the control variate (eq. 8)
-def qprop_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: float, args: Args,
-                 qf: QNetwork | None = None):  # fmt: skip
+def qprop_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: float, args: Args, qf: QNetwork | None = None):
     """``update_epochs`` passes of minibatch Adam on eq. 8 inside eq. 5 over ``make_batch``'s
     ``batch`` (with ``cv`` = A_bar and ``eta`` once the critic learns), then the beta rule.
     Without a critic, or with eta = 0, this is ``ppo_kl_update``. Returns the new beta and the
@@ -360,20 +367,20 @@ def qprop_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: fl
     pi_old = Normal(batch["mean"], batch["std"])
     actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
     for epoch in range(args.update_epochs):
-        perm = torch.randperm(batch_size)  # once per epoch: the minibatches are then views
+        perm = torch.randperm(batch_size)
         keys = ("obs", "actions", "logprobs", "mean", "std", "returns")
         shuffled = {key: batch[key][perm] for key in keys} | {"adv": adv[perm], "eta": eta[perm]}
         for start in range(0, batch_size, minibatch_size):
             mb = {key: v[start : start + minibatch_size] for key, v in shuffled.items()}
             pi = agent.dist(mb["obs"])
             surrogate = qprop_loss(agent, qf, pi, mb, analytic_scale)  # eq. 8, negated
-            kl = kl_divergence(Normal(mb["mean"], mb["std"]), pi).sum(-1).mean()  # analytic
+            kl = kl_divergence(Normal(mb["mean"], mb["std"]), pi).sum(-1).mean()
             pg_loss = surrogate + beta * kl  # inside eq. 5
             v_loss = 0.5 * ((agent.get_value(mb["obs"]) - mb["returns"]) ** 2).mean()
             optimizer.zero_grad()
             (pg_loss + args.vf_coef * v_loss).backward()
-            nn.utils.clip_grad_norm_(actor_params, args.max_grad_norm)  # policy and
-            nn.utils.clip_grad_norm_(critic_params, args.max_grad_norm)  # V apart
+            nn.utils.clip_grad_norm_(actor_params, args.max_grad_norm)
+            nn.utils.clip_grad_norm_(critic_params, args.max_grad_norm)
             optimizer.step()
         if args.kl_early_stop is not None:
             with torch.no_grad():
@@ -384,9 +391,15 @@ def qprop_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: fl
         pi = agent.dist(batch["obs"])
         d = kl_divergence(pi_old, pi).sum(-1).mean().item()  # d: mean KL[pi_old || pi]
         entropy = pi.entropy().sum(-1).mean().item()
-    stats = {"losses/policy_loss": pg_loss.item(), "losses/value_loss": v_loss.item(),
-             "losses/approx_kl": d, "losses/beta": beta, "losses/epochs": epoch + 1,
-             "charts/policy_entropy": entropy, "qprop/signal_std": signal_std.item()}  # fmt: skip
+    stats = {
+        "losses/policy_loss": pg_loss.item(),
+        "losses/value_loss": v_loss.item(),
+        "losses/approx_kl": d,
+        "losses/beta": beta,
+        "losses/epochs": epoch + 1,
+        "charts/policy_entropy": entropy,
+        "qprop/signal_std": signal_std.item(),
+    }
     if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
         beta /= 2
     elif d > args.kl_target * 1.5:
@@ -402,8 +415,7 @@ if __name__ == "__main__":
     run = Run(args)  # TRY NOT TO MODIFY: run folder, TensorBoard, seeding (common/run.py)
 
     # ENV SETUP: N envs stepped in turn, SAME_STEP autoreset (see rollout)
-    envs = gym.vector.SyncVectorEnv([make_env(args.env_id)] * args.num_envs,
-                                    autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)  # fmt: skip
+    envs = gym.vector.SyncVectorEnv([make_env(args.env_id)] * args.num_envs, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
     obs_dim = envs.single_observation_space.shape[0]
     act_dim = envs.single_action_space.shape[0]
     envs.single_action_space.seed(run.streams.action_space_seed)
@@ -420,15 +432,13 @@ if __name__ == "__main__":
     reward_scaler = RewardScaler(args.num_envs, args.gamma)
     # what model.pt keeps, and what else resume.pt needs to go on
     model = dict(agent=agent, normalizer=norm, qf=qf, qf_target=qf_target)
-    training = dict(
-        optimizer=optimizer, reward_scaler=reward_scaler, q_optimizer=q_optimizer, rb=rb
-    )
+    training = dict(optimizer=optimizer, reward_scaler=reward_scaler, q_optimizer=q_optimizer, rb=rb)
     run.start(envs, model, training)  # TRY NOT TO MODIFY: --resume restores them all
 
     # TRY NOT TO MODIFY: start the game (a resumed run goes on where its resume point left it)
     global_step, beta = run.global_step, run.restored("beta", args.beta_init)
     if run.resumed:
-        raw_obs = run.resumed_obs  # the envs mid-episode, as they were
+        raw_obs = run.resumed_obs
     else:
         raw_obs, _ = envs.reset(seed=run.streams.env_seeds)
 
@@ -439,8 +449,7 @@ if __name__ == "__main__":
                 optimizer.param_groups[0]["lr"] = frac * args.learning_rate
 
             # ALGO LOGIC: rollout
-            traj, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps, rb,
-                                              update_norm=args.norm_obs)  # fmt: skip
+            traj, raw_obs, episodes = rollout(envs, agent, norm, raw_obs, args.num_steps, rb, update_norm=args.norm_obs)
             global_step += args.num_envs * args.num_steps
             run.record_episodes(episodes, global_step)
 
@@ -455,10 +464,8 @@ if __name__ == "__main__":
             critic_ready = args.eta_mode != "none" and global_step >= args.learning_starts
             critic_ready = critic_ready and rb.num_sampleable() > 0
             if critic_ready and args.critic_steps > 0:
-                for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size,
-                                          args.critic_steps):  # fmt: skip
-                    q_loss, q_mean = critic_step(qf, qf_target, q_optimizer, agent, data,
-                                                 args.gamma, args.tau)  # fmt: skip
+                for data in sample_replay(rb, norm, reward_scale, args.critic_batch_size, args.critic_steps):
+                    q_loss, q_mean = critic_step(qf, qf_target, q_optimizer, agent, data, args.gamma, args.tau)
                 run.log({"losses/critic_loss": q_loss, "losses/q_values": q_mean})
 
             # ALGO LOGIC: advantages (eq. 3-4), the control variate (eq. 9) and eta

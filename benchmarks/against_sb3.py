@@ -70,22 +70,33 @@ def run(cmd: list[str], **kwargs) -> subprocess.CompletedProcess:
 def ours(seed: int, args: Args, runs: Path) -> dict:
     log_dir = runs / f"ipg_her_seed{seed}"
     flags = ["--total-timesteps", str(args.steps), "--eval-freq", "500", "--eval-workers", "0"]
-    run([sys.executable, str(ROOT / "ipg_her.py"), "--seed", str(seed), "--log-dir",
-         str(log_dir), *flags], cwd=ROOT)  # fmt: skip
+    run([sys.executable, str(ROOT / "ipg_her.py"), "--seed", str(seed), "--log-dir", str(log_dir), *flags], cwd=ROOT)
     (run_dir,) = [p for p in log_dir.iterdir() if p.is_dir()]
     s = read_run(run_dir)
     sps = dict(s["charts/SPS"])
     seconds = {step: step / sps[step] for step, _ in s["eval/success_rate"]}
     steps, secs = first_step_at(s["eval/success_rate"], seconds)
-    return {"steps_to_0.9": steps, "train_s_to_0.9": secs,
-            "success": s["eval/success_rate"], "run_dir": str(run_dir)}  # fmt: skip
+    return {"steps_to_0.9": steps, "train_s_to_0.9": secs, "success": s["eval/success_rate"], "run_dir": str(run_dir)}
 
 
 def sb3(seed: int, args: Args, runs: Path) -> dict:
     out = runs / f"sb3_ddpg_her_seed{seed}"
-    run([args.anchor_python, os.path.join(args.anchors, "sb3_fetchreach.py"), "--algo",
-         "ddpg_her", "--seed", str(seed), "--steps", str(args.steps), "--eval-freq", "500",
-         "--out", str(out)])  # fmt: skip
+    run(
+        [
+            args.anchor_python,
+            os.path.join(args.anchors, "sb3_fetchreach.py"),
+            "--algo",
+            "ddpg_her",
+            "--seed",
+            str(seed),
+            "--steps",
+            str(args.steps),
+            "--eval-freq",
+            "500",
+            "--out",
+            str(out),
+        ]
+    )
     evals = json.loads((out / "summary.json").read_text())["evals"]
     seconds, eval_s = {}, 0.0
     for e in evals:
@@ -100,14 +111,31 @@ def main_job(args: Args, runs: Path) -> dict:
     speed = run([args.anchor_python, os.path.join(args.anchors, "env_speed.py")]).stdout
     single = next(json.loads(line) for line in speed.splitlines() if '"single"' in line)
     t0 = time.perf_counter()
-    log = run([sys.executable, str(ROOT / "ipg_her.py"), "--env-id", "FetchReach-v4", "--seed",
-               "1", "--log-dir", str(runs / "main_job")], cwd=ROOT).stdout  # fmt: skip
+    log = run(
+        [
+            sys.executable,
+            str(ROOT / "ipg_her.py"),
+            "--env-id",
+            "FetchReach-v4",
+            "--seed",
+            "1",
+            "--log-dir",
+            str(runs / "main_job"),
+        ],
+        cwd=ROOT,
+    ).stdout
     wall = time.perf_counter() - t0
     evaluations = len(re.findall(r"eval_success=", log))
     steps = 30_000 + evaluations * 20 * 50  # FetchReach episodes are 50 steps
     raw = steps / single["steps_per_s"]
-    return {"wall_s": wall, "env_steps": steps, "raw_steps_per_s": single["steps_per_s"],
-            "raw_s": raw, "ratio": wall / raw, "env_speed": speed}  # fmt: skip
+    return {
+        "wall_s": wall,
+        "env_steps": steps,
+        "raw_steps_per_s": single["steps_per_s"],
+        "raw_s": raw,
+        "ratio": wall / raw,
+        "env_speed": speed,
+    }
 
 
 def median(values):
@@ -118,8 +146,7 @@ def median(values):
 def table(results: dict) -> str:
     fmt = lambda v, f: "-" if v is None else f.format(v)  # noqa: E731
     lines = [
-        "| method | steps to eval success >= 0.9 (per seed) | median | "
-        "training seconds to 0.9 (per seed) | median |",
+        "| method | steps to eval success >= 0.9 (per seed) | median | training seconds to 0.9 (per seed) | median |",
         "| --- | --- | --- | --- | --- |",
     ]
     for name in ("ipg_her", "sb3_ddpg_her"):

@@ -13,11 +13,25 @@ import numpy as np
 from benchmarks.run import running as live_pid
 from benchmarks.stats import final_performance, steps_to_threshold
 
-DIAGNOSTICS = ("ipg/effective_nu", "ipg/grad_var", "ipg/grad_var_cv", "ipg/corr_adv_cv",
-               "qprop/grad_var", "qprop/grad_var_cv", "qprop/corr_adv_cv")  # fmt: skip
-TAGS = ("charts/episodic_return", "charts/episodic_length", "charts/success_rate",
-        "charts/policy_entropy", "charts/SPS", "eval/episodic_return",
-        "eval/success_rate", *DIAGNOSTICS)  # fmt: skip
+DIAGNOSTICS = (
+    "ipg/effective_nu",
+    "ipg/grad_var",
+    "ipg/grad_var_cv",
+    "ipg/corr_adv_cv",
+    "qprop/grad_var",
+    "qprop/grad_var_cv",
+    "qprop/corr_adv_cv",
+)
+TAGS = (
+    "charts/episodic_return",
+    "charts/episodic_length",
+    "charts/success_rate",
+    "charts/policy_entropy",
+    "charts/SPS",
+    "eval/episodic_return",
+    "eval/success_rate",
+    *DIAGNOSTICS,
+)
 # the window of an export from before runs kept theirs: the default then, with which every
 # committed export was made (their results.md say so)
 UNRECORDED_WINDOW = 100
@@ -41,8 +55,9 @@ def read_events(path: Path) -> list:
         end = body + int.from_bytes(length, "little")
         for checked, crc in ((length, data[pos + 8 : body]), (data[body:end], data[end : end + 4])):
             if len(crc) < 4:
-                print(f"warning: {path}: its last record is cut short; read the {len(events)} "
-                      "events before it", file=sys.stderr)  # fmt: skip
+                print(
+                    f"warning: {path}: its last record is cut short; read the {len(events)} events before it", file=sys.stderr
+                )
                 return events
             if masked_crc32c(checked) != int.from_bytes(crc, "little"):
                 raise CorruptEventFile(f"{path}: the record at byte {pos} fails its checksum")
@@ -85,10 +100,7 @@ def downsample(points: list, n: int = 300) -> list:
     """At most ``n`` points: the mean value of consecutive chunks, at each chunk's last step."""
     if len(points) <= n:
         return points
-    return [
-        [int(c[-1, 0]), round(float(c[:, 1].mean()), 5)]
-        for c in np.array_split(np.array(points, float), n)
-    ]
+    return [[int(c[-1, 0]), round(float(c[:, 1].mean()), 5)] for c in np.array_split(np.array(points, float), n)]
 
 
 def collect(runs_dir: Path, window: int, include_unfinished: bool = False) -> dict:
@@ -129,17 +141,20 @@ def collect(runs_dir: Path, window: int, include_unfinished: bool = False) -> di
         run["final"] = final_performance(run, bool(run.get("charts/success_rate")), window)
         run["reach"] = steps_to_threshold(run, env_id, window)
         run["window"] = window
-        for tag in ("charts/episodic_return", "charts/episodic_length", "charts/success_rate",
-                    "charts/policy_entropy", *DIAGNOSTICS):  # fmt: skip
+        for tag in (
+            "charts/episodic_return",
+            "charts/episodic_length",
+            "charts/success_rate",
+            "charts/policy_entropy",
+            *DIAGNOSTICS,
+        ):
             if tag in run:
                 run[tag] = downsample(run[tag], 100 if tag in DIAGNOSTICS else 300)
         groups[f"{name}__{env_id}"][seed.removeprefix("seed")] = run
     return groups
 
 
-def left_out(
-    folder: Path, text: str | None, code: int | None, stopped: bool, resumable: bool
-) -> str:
+def left_out(folder: Path, text: str | None, code: int | None, stopped: bool, resumable: bool) -> str:
     """Why a run folder is not read, for its warning. Only ``exit_code`` 0, which run.py writes
     when the run's process has ended, says that a run finished: without the file a run may be
     running, or may have been stopped with its runner (kill -9, a machine's end) at any step."""
@@ -166,9 +181,7 @@ def read_export(path: Path) -> dict:
     text = path.read_text()
     groups = json.loads(text)
     if not isinstance(groups, dict):
-        raise ValueError(
-            f'its JSON is {text.strip()[:20]!r}, not an object {{"name__env_id": ...}}'
-        )
+        raise ValueError(f'its JSON is {text.strip()[:20]!r}, not an object {{"name__env_id": ...}}')
     for group, runs in groups.items():
         if group.count("__") != 1 or not isinstance(runs, dict):
             raise ValueError(f'{group!r} is not a group "name__env_id" of runs {{seed: run}}')

@@ -39,9 +39,7 @@ def plot(
     per_episode: bool = False,
     median: bool = False,
 ) -> None:
-    warnings.simplefilter(
-        "ignore", RuntimeWarning
-    )  # grid points past a seed's last step are NaN on purpose
+    warnings.simplefilter("ignore", RuntimeWarning)  # grid points past a seed's last step are NaN on purpose
     for name in names:
         runs = groups.get(f"{name}__{env_id}", {})
         runs = [r[tag] for r in runs.values() if r.get(tag)]
@@ -63,9 +61,7 @@ def plot(
             lo, hi = bootstrap_band(curves, rng)
         ax.fill_between(x, lo, hi, alpha=0.2)
     ax.set_xlabel("episodes" if per_episode else "environment steps")
-    ax.set_ylabel(
-        tag.split("/")[-1].replace("_", " ") + (" (eval)" if tag.startswith("eval") else "")
-    )
+    ax.set_ylabel(tag.split("/")[-1].replace("_", " ") + (" (eval)" if tag.startswith("eval") else ""))
     ax.set_title(env_id)
     ax.grid(alpha=0.3)
     if ax.get_legend_handles_labels()[0]:
@@ -82,15 +78,11 @@ def draw_anchors(ax, peers: list, per_episode: bool = False) -> None:
             grid = np.array(sorted({s for c in peer.curves for s, _ in c}), float)
             values = np.stack([curve_on_grid(c, grid, 1) for c in peer.curves])
             label = f"{peer.label.split(' (')[0]}, anchor: median of {len(values)} seeds, min-max"
-            ax.plot(grid / scale, np.nanmedian(values, 0), "k-o", markersize=3, linewidth=1.2,
-                    label=label)  # fmt: skip
-            ax.fill_between(
-                grid / scale, np.nanmin(values, 0), np.nanmax(values, 0), color="k", alpha=0.1
-            )
+            ax.plot(grid / scale, np.nanmedian(values, 0), "k-o", markersize=3, linewidth=1.2, label=label)
+            ax.fill_between(grid / scale, np.nanmin(values, 0), np.nanmax(values, 0), color="k", alpha=0.1)
         else:
             steps, levels = zip(*[(s[0], level) for level, s in peer.first.items()], strict=True)
-            ax.plot(np.array(steps) / scale, levels, "k*", markersize=10,
-                    label="TQC+HER zoo agent reached")  # fmt: skip
+            ax.plot(np.array(steps) / scale, levels, "k*", markersize=10, label="TQC+HER zoo agent reached")
             for level in levels:
                 ax.axhline(level, color="k", linestyle=":", linewidth=0.8)
         ax.legend(fontsize=8)
@@ -118,8 +110,7 @@ def draw_paper_figures(groups: dict, rng, peers: dict | None = None) -> dict:
         plot(axes[1], groups, names, "FetchReach-v4", "charts/episodic_return", rng, smooth=10)
         add(fig, "fig4_fetchreach.png")
         fig, ax = plt.subplots(figsize=(6, 4))
-        plot(ax, groups, ["ppo_kl", "ipg", "ipg_her"], "FetchReach-v4", "eval/success_rate", rng,
-             per_episode=True)  # fmt: skip
+        plot(ax, groups, ["ppo_kl", "ipg", "ipg_her"], "FetchReach-v4", "eval/success_rate", rng, per_episode=True)
         draw_anchors(ax, (peers or {}).get("FetchReach-v4", []), per_episode=True)
         add(fig, "fig5_fetchreach_success.png")
     return figures
@@ -150,22 +141,24 @@ def draw_mixing_figures(groups: dict, rng, early: int = 5000) -> dict:
         tag = "eval/success_rate" if goal else "eval/episodic_return"
         first = early if goal else 100_000  # the early budget, in steps
         fig, axes = plt.subplots(1, 2, figsize=(11, 4))
-        evaluated = steps_at([r for g in variants.values() for rs in g.values() for r in rs],
-                             tag, first)  # fmt: skip
+        evaluated = steps_at([r for g in variants.values() for rs in g.values() for r in rs], tag, first)
         early_title = f"{env_id}: evaluation at {evaluated} (the last by {first:,} steps)"
-        for ax, budget, label, title in ((axes[0], np.inf, "final", env_id),
-                                         (axes[1], first, "early", early_title)):  # fmt: skip
+        for ax, budget, label, title in ((axes[0], np.inf, "final", env_id), (axes[1], first, "early", early_title)):
             for variant in sorted(variants):
                 nus = sorted(variants[variant])
-                values = [np.array([value_at(r, tag, budget) for r in variants[variant][nu]])
-                          for nu in nus]  # fmt: skip
+                values = [np.array([value_at(r, tag, budget) for r in variants[variant][nu]]) for nu in nus]
                 means = [np.nanmean(v) for v in values]
-                boot = [[np.nanmean(v[rng.integers(0, len(v), len(v))]) for _ in range(1000)]
-                        for v in values]  # fmt: skip
+                boot = [[np.nanmean(v[rng.integers(0, len(v), len(v))]) for _ in range(1000)] for v in values]
                 lo, hi = np.percentile(boot, 2.5, 1), np.percentile(boot, 97.5, 1)
                 seeds = min(len(v) for v in values)
-                ax.errorbar(nus, means, yerr=[np.subtract(means, lo), np.subtract(hi, means)],
-                            marker="o", capsize=3, label=f"{variant} ({seeds}+ seeds)")  # fmt: skip
+                ax.errorbar(
+                    nus,
+                    means,
+                    yerr=[np.subtract(means, lo), np.subtract(hi, means)],
+                    marker="o",
+                    capsize=3,
+                    label=f"{variant} ({seeds}+ seeds)",
+                )
             ax.set_xlabel("nu")
             ax.set_ylabel(f"{tag.split('/')[1].replace('_', ' ')} (eval, {label})")
             ax.set_title(title, fontsize=10)
@@ -206,8 +199,7 @@ def draw_task_figures(groups: dict, rng, peers: dict, suite: str, settings: Repo
         names = sorted(g.split("__")[0] for g in groups if g.endswith(f"__{env_id}"))
         fig, ax = plt.subplots(figsize=(7, 4))
         if reported_by_success(env_id):
-            plot(ax, groups, names, env_id, "eval/success_rate", rng,
-                 per_episode=settings.per_episode, median=settings.median)  # fmt: skip
+            plot(ax, groups, names, env_id, "eval/success_rate", rng, per_episode=settings.per_episode, median=settings.median)
             draw_anchors(ax, peers.get(env_id, []), per_episode=settings.per_episode)
         else:
             plot(ax, groups, names, env_id, "charts/episodic_return", rng, smooth=20)

@@ -26,8 +26,15 @@ def paired(export: dict, a: str, b: str, resamples: int = 2000, seed: int = 0) -
     means = d[rng.integers(0, len(d), (resamples, len(d)))].mean(1)
     flips = np.array(list(itertools.product((1, -1), repeat=len(d))))  # every sign assignment
     p = np.mean(np.abs((flips * d).mean(1)) >= abs(d.mean()) - 1e-9)
-    return {"seeds": seeds, "a": fa, "b": fb, "difference": d, "mean": d.mean(),
-            "interval": np.percentile(means, [2.5, 97.5]), "p": p}  # fmt: skip
+    return {
+        "seeds": seeds,
+        "a": fa,
+        "b": fb,
+        "difference": d,
+        "mean": d.mean(),
+        "interval": np.percentile(means, [2.5, 97.5]),
+        "p": p,
+    }
 
 
 if __name__ == "__main__":
@@ -37,6 +44,8 @@ if __name__ == "__main__":
     for row in zip(r["seeds"], r["a"], r["b"], r["difference"], strict=True):
         print(f"| {row[0]} | {row[1]:,.0f} | {row[2]:,.0f} | {row[3]:+,.0f} |")
     lo, hi = r["interval"]
-    print(f"\nmean difference {r['mean']:+,.0f}, 95% paired bootstrap interval [{lo:+,.0f}, "
-          f"{hi:+,.0f}] over {len(r['seeds'])} seeds; A ahead on {np.sum(r['difference'] > 0)}; "
-          f"exact sign-flip permutation test p = {r['p']:.3f} (two-sided)")  # fmt: skip
+    print(
+        f"\nmean difference {r['mean']:+,.0f}, 95% paired bootstrap interval [{lo:+,.0f}, "
+        f"{hi:+,.0f}] over {len(r['seeds'])} seeds; A ahead on {np.sum(r['difference'] > 0)}; "
+        f"exact sign-flip permutation test p = {r['p']:.3f} (two-sided)"
+    )

@@ -53,16 +53,15 @@ def load_peers(side_by_side: Path) -> dict:
         return peers
     data = json.loads(side_by_side.read_text())
     budget = f"{data['steps']:,} steps" if "steps" in data else "its budget"
-    for key, label, anchor in (("sb3_ddpg_her", f"SB3 DDPG+HER (anchor; {budget})", True),
-                               ("ipg_her", f"IPG+HER side by side ({budget})", False)):  # fmt: skip
+    for key, label, anchor in (
+        ("sb3_ddpg_her", f"SB3 DDPG+HER (anchor; {budget})", True),
+        ("ipg_her", f"IPG+HER side by side ({budget})", False),
+    ):
         runs = data.get(key, [])
         if not runs:
             continue
         curves = [[list(p) for p in r["success"]] for r in runs]
-        first = {
-            level: [first_eval_at({"eval/success_rate": c}, level)[0] for c in curves]
-            for level in GOAL_LEVELS[1]
-        }
+        first = {level: [first_eval_at({"eval/success_rate": c}, level)[0] for c in curves] for level in GOAL_LEVELS[1]}
         seconds = {  # recorded per level, as train_s_to_0.9
             float(m[1]): [np.nan if r.get(m[0]) is None else r[m[0]] for r in runs]
             for m in filter(None, (re.fullmatch(r"train_s_to_([0-9.]+)", k) for k in runs[0]))
@@ -97,6 +96,7 @@ def load_anchor_runs(folder: Path, seeds: dict) -> dict:
         curves = [[[e["step"], e["eval_success"]] for e in r["evals"]] for r in runs]
         seeds = f"{len(runs)} ({seed_ranges(r['seed'] for r in runs)})"
         label = f"SB3 {SB3_NAMES.get(algo, algo)} (anchor; zoo settings)"
-        peers[env_id].append(Peer(label, True, seeds, curves, dict(first), dict(seconds),
-                                  [r["train_steps_per_s"] for r in runs]))  # fmt: skip
+        peers[env_id].append(
+            Peer(label, True, seeds, curves, dict(first), dict(seconds), [r["train_steps_per_s"] for r in runs])
+        )
     return peers

@@ -125,35 +125,30 @@ def write_together(files: dict) -> None:
 def main(args: Args) -> int:
     if args.suite not in SUITES:  # its settings would be guessed and its results.md rewritten
         known = ", ".join(SUITES)
-        return refuse(f"--suite {args.suite}: not a suite of benchmarks/run.py ({known}); "
-                      "--results-dir names another export folder")  # fmt: skip
+        return refuse(
+            f"--suite {args.suite}: not a suite of benchmarks/run.py ({known}); --results-dir names another export folder"
+        )
     if args.window < 1:
         return refuse(
-            f"--window {args.window}: the final return is the mean of the last --window training "
-            "episodes; give 1 or more"
+            f"--window {args.window}: the final return is the mean of the last --window training episodes; give 1 or more"
         )
     # a bad --page is caught before anything is read or written
     page = Path(args.page)
     start, end = f"<!-- results:{args.suite}:start -->", f"<!-- results:{args.suite}:end -->"
     if args.page and not page.is_file():
-        return refuse(f"--page {page}: no such file; name an existing Markdown page holding the "
-                      f"markers {start} and {end}, or leave out --page")  # fmt: skip
+        return refuse(
+            f"--page {page}: no such file; name an existing Markdown page holding the "
+            f"markers {start} and {end}, or leave out --page"
+        )
     if args.page and not page.read_text().count(start) == page.read_text().count(end) == 1:
-        return refuse(f"--page {page} needs the markers {start} and {end}, once each, around "
-                      "the place to write; add them")  # fmt: skip
+        return refuse(f"--page {page} needs the markers {start} and {end}, once each, around the place to write; add them")
     merged = Path(args.merge_export)
     if args.merge_export and not merged.is_file():
-        return refuse(
-            f"--merge-export {merged}: no such file; name an earlier curves.json, or leave out "
-            "--merge-export"
-        )
+        return refuse(f"--merge-export {merged}: no such file; name an earlier curves.json, or leave out --merge-export")
     try:
         to_merge = read_export(merged) if args.merge_export else {}
     except (OSError, ValueError) as error:
-        return refuse(
-            f"--merge-export {merged} is not a readable export ({error}); name an earlier "
-            "curves.json"
-        )
+        return refuse(f"--merge-export {merged} is not a readable export ({error}); name an earlier curves.json")
     own = Path(f"benchmarks/results/{args.suite}")
     results = Path(args.results_dir or own)
     # the suite's own results have their figures in the docs; any other results folder keeps its
@@ -165,23 +160,22 @@ def main(args: Args) -> int:
         old = read_export(export) if export.is_file() else {}
     except ValueError as error:  # a damaged export: restored or replaced, never merged
         if args.from_export or not args.replace_export:
-            return refuse(f"{export} is not a readable export ({error}); restore it (git "
-                          "checkout) or, reading the runs, pass --replace-export")  # fmt: skip
+            return refuse(
+                f"{export} is not a readable export ({error}); restore it (git "
+                "checkout) or, reading the runs, pass --replace-export"
+            )
         old = {}
     if args.from_export:
         if not old:
-            return refuse(f"no runs in {export}; run report.py without --from-export on the "
-                          "event files first")  # fmt: skip
+            return refuse(f"no runs in {export}; run report.py without --from-export on the event files first")
         groups = old
     else:
         runs_dir = Path(args.runs_dir) / args.suite
         if not runs_dir.is_dir():
-            return refuse(f"no runs in {runs_dir}; run benchmarks/run.py --suite {args.suite} "
-                          "first")  # fmt: skip
+            return refuse(f"no runs in {runs_dir}; run benchmarks/run.py --suite {args.suite} first")
         groups = collect(runs_dir, args.window, args.include_unfinished)
         if not groups:
-            return refuse(f"no finished run in {runs_dir}, nothing to report; {results} is left "
-                          "as it is")  # fmt: skip
+            return refuse(f"no finished run in {runs_dir}, nothing to report; {results} is left as it is")
         if args.keep_export:  # seed by seed
             for group, runs in old.items():
                 for seed, run in runs.items():
@@ -189,26 +183,21 @@ def main(args: Args) -> int:
                         groups[group][seed] = run | {"kept": True}
         for group, runs in to_merge.items():  # rows the runs lack, kept visibly apart
             if group not in groups:
-                groups[group] = {seed: run | {"measured_on": args.merge_label}
-                                 for seed, run in runs.items()}  # fmt: skip
-        lost = [
-            f"{g} seed {s}" for g, runs in old.items() for s in runs if s not in groups.get(g, {})
-        ]
+                groups[group] = {seed: run | {"measured_on": args.merge_label} for seed, run in runs.items()}
+        lost = [f"{g} seed {s}" for g, runs in old.items() for s in runs if s not in groups.get(g, {})]
         if lost and not args.replace_export:  # a committed result is never lost by accident
             n = sum(map(len, old.values()))
-            return refuse(f"{len(lost)} of the {n} runs in {export} are not in {runs_dir} "
-                          f"({lost[0]}, ...), so the export is left as it is: --keep-export "
-                          "keeps them, --replace-export drops them")  # fmt: skip
+            return refuse(
+                f"{len(lost)} of the {n} runs in {export} are not in {runs_dir} "
+                f"({lost[0]}, ...), so the export is left as it is: --keep-export "
+                "keeps them, --replace-export drops them"
+            )
     # results.md states one window: every run's final return and steps to threshold, computed
     # when it was read from its event files, must be over --window's
     windows = {run["window"] for runs in groups.values() for run in runs.values()}
     if other := sorted(windows - {args.window}):
         held = export if args.from_export else f"{export} (--keep-export) or --merge-export"
-        instead = (
-            "read the event files without --from-export"
-            if args.from_export
-            else "leave those runs out"
-        )
+        instead = "read the event files without --from-export" if args.from_export else "leave those runs out"
         return refuse(
             f"--window {args.window}: the runs from {held} hold their final return and steps to "
             f"threshold over the last {' or '.join(map(str, other))} training episodes, which an "
@@ -221,9 +210,7 @@ def main(args: Args) -> int:
     suite_seeds = defaultdict(set)  # the seeds this suite ran each task on
     for group, runs in groups.items():
         suite_seeds[group.split("__")[1]].update(int(seed) for seed in runs)
-    for env_id, anchors in load_anchor_runs(
-        Path(args.anchor_runs or ANCHOR_RUNS), suite_seeds
-    ).items():
+    for env_id, anchors in load_anchor_runs(Path(args.anchor_runs or ANCHOR_RUNS), suite_seeds).items():
         peers[env_id] += anchors
 
     if settings.figures == "paper":
@@ -243,11 +230,8 @@ def main(args: Args) -> int:
     curves = "mean over seeds with a 95% bootstrap confidence band"
     if settings.median:
         curves = "median over seeds, the band from the lowest to the highest seed"
-    earlier = sorted({r["measured_on"] for g in groups.values() for r in g.values()
-                      if "measured_on" in r})  # fmt: skip
-    merged_note = (
-        f"† measured on {', '.join(earlier)}, not re-run on this code.\n\n" if earlier else ""
-    )
+    earlier = sorted({r["measured_on"] for g in groups.values() for r in g.values() if "measured_on" in r})
+    merged_note = f"† measured on {', '.join(earlier)}, not re-run on this code.\n\n" if earlier else ""
     kept = sum("kept" in r for g in groups.values() for r in g.values())
     if kept:
         merged_note += (
@@ -255,9 +239,12 @@ def main(args: Args) -> int:
             "own earlier export (`curves.json`: their event files were on an earlier machine), "
             "the others from their event files.\n\n"
         )
-    unfinished = [f"{g.split('__')[0]} seed {seed} at {r['unfinished_at']:,}"
-                  for g, runs in sorted(groups.items()) for seed, r in sorted(runs.items())
-                  if "unfinished_at" in r]  # fmt: skip
+    unfinished = [
+        f"{g.split('__')[0]} seed {seed} at {r['unfinished_at']:,}"
+        for g, runs in sorted(groups.items())
+        for seed, r in sorted(runs.items())
+        if "unfinished_at" in r
+    ]
     finished = "finished (‡: or were stopped mid-way)" if unfinished else "finished"
     if unfinished:
         merged_note += (
@@ -277,9 +264,7 @@ def main(args: Args) -> int:
             "of its sessions: several runs shared two cores); median over all seeds, a seed "
             "that has not reached the level counting as never.\n\n"
         )
-    finalists = (
-        finalists_table(groups, rng, settings.finalists_from) if settings.finalists_from else ""
-    )
+    finalists = finalists_table(groups, rng, settings.finalists_from) if settings.finalists_from else ""
     if finalists:
         success_block += (
             f"{finalists}\n\nThe finalists on fresh seeds only (seeds {settings.finalists_from} "

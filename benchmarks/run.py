@@ -46,8 +46,7 @@ WANDB = "wandb==0.31.0"  # --track's, as requirements-test.txt pins it
 class Args:
     """Run a suite of script x task x seed, one process each; a later call resumes it."""
 
-    suite: Literal["paper", "ablations", "eta", "mixing", "push", "fetch", "hopper", "goals",
-                   "one_recipe", "quick"]  # fmt: skip
+    suite: Literal["paper", "ablations", "eta", "mixing", "push", "fetch", "hopper", "goals", "one_recipe", "quick"]
     """which grid (benchmarks/suites.py's docstring): quick takes seconds, paper hours"""
     seeds: tuple[int, ...] = ()
     """override the suite's seeds"""
@@ -120,9 +119,15 @@ def execute(command: list[str], run_dir: str) -> int | None:
                 return None
             # appended: an attempt that resumes keeps the output of the one it resumes
             with open(run_dir / "stdout.log", "a") as out, open(run_dir / "stderr.log", "a") as err:
-                proc = subprocess.Popen(command, cwd=ROOT, env=env, stdout=out, stderr=err,
-                                        start_new_session=True,
-                                        preexec_fn=die_with_runner if LIBC else None)  # fmt: skip
+                proc = subprocess.Popen(
+                    command,
+                    cwd=ROOT,
+                    env=env,
+                    stdout=out,
+                    stderr=err,
+                    start_new_session=True,
+                    preexec_fn=die_with_runner if LIBC else None,
+                )
             RUNNING.add(proc)
             (run_dir / "pid").write_text(f"{proc.pid}\n")
         code = proc.wait()
@@ -168,8 +173,10 @@ def main(args: Args) -> int:
         names = sorted({r.name for r in every} | {r.env_id for r in every})
         close = difflib.get_close_matches(args.only, names, n=3)
         hint = f"did you mean {' or '.join(close)}?" if close else f"try one of {', '.join(names)}"
-        return refuse(f"--only {args.only}: no run of the {args.suite} suite has it in its "
-                      f"folder name ({{name}}__{{env_id}}__seed{{seed}}); {hint}")  # fmt: skip
+        return refuse(
+            f"--only {args.only}: no run of the {args.suite} suite has it in its "
+            f"folder name ({{name}}__{{env_id}}__seed{{seed}}); {hint}"
+        )
     if args.workers < 1:
         return refuse(f"--workers {args.workers}: the runs at once must be at least 1")
     if args.backend == "ray":
@@ -188,8 +195,10 @@ def main(args: Args) -> int:
             suite_dir.mkdir(parents=True, exist_ok=True)
             tempfile.TemporaryFile(dir=suite_dir).close()
         except OSError as error:
-            return refuse(f"--out-dir {args.out_dir}: cannot write in {suite_dir} "
-                          f"({error.strerror}); name a folder the runs can write in")  # fmt: skip
+            return refuse(
+                f"--out-dir {args.out_dir}: cannot write in {suite_dir} "
+                f"({error.strerror}); name a folder the runs can write in"
+            )
     todo = [r for r in runs if not finished(suite_dir / r.folder)]
     skipped = len(runs) - len(todo)
     alive = {r: pid for r in todo if (pid := running(suite_dir / r.folder))}
@@ -207,8 +216,10 @@ def main(args: Args) -> int:
             sys.stdout = open(os.devnull, "w")
         return 0
     start, failed, stopped, done = time.time(), [], [], 0
-    print(f"suite {args.suite}: {len(todo)} to run, {skipped} already finished, "
-          f"{args.workers} workers, backend {args.backend}", flush=True)  # fmt: skip
+    print(
+        f"suite {args.suite}: {len(todo)} to run, {skipped} already finished, {args.workers} workers, backend {args.backend}",
+        flush=True,
+    )
 
     def report(run: Run, code: int | None) -> None:
         nonlocal done
@@ -223,11 +234,7 @@ def main(args: Args) -> int:
         done += 1
         elapsed = time.time() - start
         eta = elapsed / done * (len(todo) - done - len(held))
-        status = (
-            "ok"
-            if code == 0
-            else f"FAILED (exit {code}; see {suite_dir / run.folder / 'stderr.log'})"
-        )
+        status = "ok" if code == 0 else f"FAILED (exit {code}; see {suite_dir / run.folder / 'stderr.log'})"
         print(
             f"[{done}/{len(todo)}] {run.folder}: {status}  elapsed {fmt(elapsed)}  ETA {fmt(eta)}",
             flush=True,
@@ -238,14 +245,15 @@ def main(args: Args) -> int:
     if args.backend == "ray":
         # workers import this module from the project folder (the same path on every node)
         group = {"WANDB_RUN_GROUP": args.suite} if args.track else {}
-        ray.init(address=args.ray_address, include_dashboard=False, log_to_driver=False,
-                 runtime_env={"env_vars": {"PYTHONPATH": str(ROOT), **group}})  # fmt: skip
+        ray.init(
+            address=args.ray_address,
+            include_dashboard=False,
+            log_to_driver=False,
+            runtime_env={"env_vars": {"PYTHONPATH": str(ROOT), **group}},
+        )
         # this module by name (ROOT is on sys.path), as run.py's __main__ won't pickle
         remote = ray.remote(num_cpus=1)(importlib.import_module("benchmarks.run").execute)
-        pending = {
-            remote.remote(r.command(suite_dir / r.folder, args.track), str(suite_dir / r.folder)): r
-            for r in todo
-        }
+        pending = {remote.remote(r.command(suite_dir / r.folder, args.track), str(suite_dir / r.folder)): r for r in todo}
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
             for ref in ready:
@@ -254,23 +262,25 @@ def main(args: Args) -> int:
     else:
         with ThreadPoolExecutor(max_workers=args.workers) as pool:
             futures = {
-                pool.submit(
-                    execute, r.command(suite_dir / r.folder, args.track), str(suite_dir / r.folder)
-                ): r
-                for r in todo
+                pool.submit(execute, r.command(suite_dir / r.folder, args.track), str(suite_dir / r.folder)): r for r in todo
             }
             for future in as_completed(futures):
                 report(futures[future], future.result())
     if STOPPED:
         resumable = sum(any((suite_dir / f).glob("*/resume.pt")) for f in stopped)
-        print(f"stopped by {signal.Signals(STOPPED[0]).name}: {done - len(failed)} finished, "
-              f"{len(failed)} failed, {len(stopped)} interrupted ({resumable} with a resume "
-              f"point), {len(todo) - done - len(stopped)} not started; to resume, run the same "
-              f"command again: python {shlex.join(sys.argv)}", flush=True)  # fmt: skip
+        print(
+            f"stopped by {signal.Signals(STOPPED[0]).name}: {done - len(failed)} finished, "
+            f"{len(failed)} failed, {len(stopped)} interrupted ({resumable} with a resume "
+            f"point), {len(todo) - done - len(stopped)} not started; to resume, run the same "
+            f"command again: python {shlex.join(sys.argv)}",
+            flush=True,
+        )
         return 128 + STOPPED[0]
-    print(f"summary: {done - len(failed)} done, {len(failed)} failed, {skipped} skipped, "
-          f"{len(alive) + len(held)} still running elsewhere, "
-          f"wall time {fmt(time.time() - start)}")  # fmt: skip
+    print(
+        f"summary: {done - len(failed)} done, {len(failed)} failed, {skipped} skipped, "
+        f"{len(alive) + len(held)} still running elsewhere, "
+        f"wall time {fmt(time.time() - start)}"
+    )
     for name in failed:
         print(f"failed: {name}")
     return 1 if failed or alive or held else 0

@@ -71,9 +71,7 @@ def median_steps(reach) -> float:
     return float(np.median(np.where(np.isfinite(reach), reach, np.inf)))
 
 
-def bootstrap_band(
-    curves: np.ndarray, rng: np.random.Generator, n: int = 1000
-) -> tuple[np.ndarray, np.ndarray]:
+def bootstrap_band(curves: np.ndarray, rng: np.random.Generator, n: int = 1000) -> tuple[np.ndarray, np.ndarray]:
     """95% bootstrap confidence interval of the mean over seeds, pointwise."""
     seeds = curves.shape[0]
     means = np.stack([np.nanmean(curves[rng.integers(0, seeds, seeds)], 0) for _ in range(n)])

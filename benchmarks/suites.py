@@ -54,9 +54,20 @@ class Run:
     def command(self, run_dir: Path, track: bool = False) -> list[str]:
         """The run's command; where an interrupted attempt left a resume point (ipg_her.py's
         ``--resume-freq``), it goes on from the latest one instead of starting again."""
-        command = [sys.executable, str(ROOT / self.script), "--env-id", self.env_id,
-                   "--seed", str(self.seed), "--exp-name", self.name, "--log-dir", str(run_dir),
-                   *self.flags, *(["--track"] if track else [])]  # fmt: skip
+        command = [
+            sys.executable,
+            str(ROOT / self.script),
+            "--env-id",
+            self.env_id,
+            "--seed",
+            str(self.seed),
+            "--exp-name",
+            self.name,
+            "--log-dir",
+            str(run_dir),
+            *self.flags,
+            *(["--track"] if track else []),
+        ]
         resume_points = sorted(Path(run_dir).glob("*/resume.pt"), key=lambda p: p.stat().st_mtime)
         return command + (["--resume", str(resume_points[-1].parent)] if resume_points else [])
 
@@ -79,27 +90,75 @@ FETCH_EVAL = ("--total-timesteps", "30000", "--eval-freq", "2500", "--eval-episo
 EVERY = ("--diagnostics-every", "1")  # the mixing study logs ipg/* at every update
 # mixing: the on-policy batch, 2 envs x 50 steps or x 500, with the same critic steps and policy
 # minibatch steps per environment step (0.5 and 0.1)
-BATCHES = {"b100": ("--num-steps", "50", *EVERY),
-           "b1000": ("--num-steps", "500", "--critic-steps", "500", "--num-minibatches", "10",
-                     *EVERY)}  # fmt: skip
+BATCHES = {
+    "b100": ("--num-steps", "50", *EVERY),
+    "b1000": ("--num-steps", "500", "--critic-steps", "500", "--num-minibatches", "10", *EVERY),
+}
 # mixing on Hopper: ipg_her.py with PPO-KL's batch, learning rate and gamma (at nu = 0 it is PPO-KL,
 # but not ppo_kl.py's defaults: KL target 0.01, initial log std 0, input clip 5, no learning-rate
 # annealing, 20 evaluation episodes), and a critic trained about once per environment step after a
 # real warm-up
-HOPPER_IPG = (*K300, "--num-envs", "4", "--num-steps", "512", "--num-minibatches", "32",
-              "--learning-rate", "3e-4", "--gamma", "0.99", "--kl-target", "0.01",
-              "--norm-reward", "--critic-steps", "2048", "--learning-starts", "10000",
-              "--eval-freq", "20000", *EVERY)  # fmt: skip
+HOPPER_IPG = (
+    *K300,
+    "--num-envs",
+    "4",
+    "--num-steps",
+    "512",
+    "--num-minibatches",
+    "32",
+    "--learning-rate",
+    "3e-4",
+    "--gamma",
+    "0.99",
+    "--kl-target",
+    "0.01",
+    "--norm-reward",
+    "--critic-steps",
+    "2048",
+    "--learning-starts",
+    "10000",
+    "--eval-freq",
+    "20000",
+    *EVERY,
+)
 # hopper: TD3's update regime, an update every 256 steps, one critic step per environment step,
 # 128 policy steps, run in parts; TD3_NARROW: TD3's exploration noise (0.1) with the KL target
 # scaled by (0.3 / 0.1)^2, so that the mean's step per update stays what it was at 0.3
-TD3 = (*K300, "--num-envs", "1", "--num-steps", "256", "--critic-steps", "256",
-       "--update-epochs", "8", "--num-minibatches", "16", "--learning-rate", "3e-4",
-       "--gamma", "0.99", "--tau", "0.005", "--hidden", "256", "--twin-critic",
-       "--target-std", "0.3", "--q-bar", "sample", "--learning-starts", "10000",
-       "--eval-freq", "25600", "--eval-episodes", "10", "--resume-freq", "51200")  # fmt: skip
-TD3_NARROW = (*[f if f != "0.3" else "0.1" for f in TD3], "--kl-target", "0.9",
-              "--bounds-loss", "1.0")  # fmt: skip
+TD3 = (
+    *K300,
+    "--num-envs",
+    "1",
+    "--num-steps",
+    "256",
+    "--critic-steps",
+    "256",
+    "--update-epochs",
+    "8",
+    "--num-minibatches",
+    "16",
+    "--learning-rate",
+    "3e-4",
+    "--gamma",
+    "0.99",
+    "--tau",
+    "0.005",
+    "--hidden",
+    "256",
+    "--twin-critic",
+    "--target-std",
+    "0.3",
+    "--q-bar",
+    "sample",
+    "--learning-starts",
+    "10000",
+    "--eval-freq",
+    "25600",
+    "--eval-episodes",
+    "10",
+    "--resume-freq",
+    "51200",
+)
+TD3_NARROW = (*[f if f != "0.3" else "0.1" for f in TD3], "--kl-target", "0.9", "--bounds-loss", "1.0")
 FETCH_EVERY = ("--eval-freq", "10000", "--eval-episodes", "50", "--resume-freq", "50000")
 ONE_CRITIC = ("--no-twin-critic",)  # the recipe's defaults before the twin critic
 # The recipe's defaults when the fetch and goals suites ran, before task_defaults derived them
@@ -108,15 +167,12 @@ ONE_CRITIC = ("--no-twin-critic",)  # the recipe's defaults before the twin crit
 # rows of their own (PickAndPlace's grasped starts, 0.5, are what task_defaults gives it now).
 SUMMED = ("--target-std", "1.0")
 PICK_ROW = ("--target-std", "1.0", "1.0", "1.0", "0.3")
-SLIDE_ROW = ("--target-std", "0.3", "0.3", "0.3", "1.0", "--action-l2", "0.0", "--bounds-loss",
-             "1.0")  # and --anneal-lr  # fmt: skip
+SLIDE_ROW = ("--target-std", "0.3", "0.3", "0.3", "1.0", "--action-l2", "0.0", "--bounds-loss", "1.0")  # and --anneal-lr
 PICK_ONE_SIGMA = ("--total-timesteps", "500000", *FETCH_EVERY, *SUMMED)
 SLIDE_CONSTLR = ("--total-timesteps", "1000000", *FETCH_EVERY, "--no-anneal-lr")
 PUSH_BUDGET = ("--total-timesteps", "{steps}", "--eval-freq", "25000", "--resume-freq", "50000")
-TINY = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4", "--update-epochs", "2",
-        "--eval-episodes", "1")  # fmt: skip
-TINY_IPG = ("--total-timesteps", "300", "--critic-steps", "4", "--eval-freq", "100",
-            "--eval-episodes", "2")  # fmt: skip
+TINY = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4", "--update-epochs", "2", "--eval-episodes", "1")
+TINY_IPG = ("--total-timesteps", "300", "--critic-steps", "4", "--eval-freq", "100", "--eval-episodes", "2")
 
 
 @dataclass(frozen=True)
@@ -147,150 +203,279 @@ class Suite(NamedTuple):
 
 # In the push suite "{steps}" and "{k}" stand for --push-steps and the same in thousands.
 SUITES: dict[str, Suite] = {
-    "paper": Suite((1, 2, 3, 4, 5), Report(figures="paper"), [
-        ("ppo_kl", PPO, HOPPER, ()),
-        ("qprop_ppo", QPROP, HOPPER, ()),
-        ("ppo_kl", PPO, REACH, FETCH_EVAL),
-        ("qprop_ppo", QPROP, REACH, FETCH_EVAL),
-        ("ipg", IPG, REACH, ("--no-her",)),
-        ("ipg_her", IPG, REACH, ()),
-    ]),
-    "ablations": Suite((1, 2, 3), Report(), [
-        *[(f"qprop_{eta}_{norm}", QPROP, HOPPER, ("--eta-mode", eta, "--normalization", norm))
-          for eta in ("conservative", "aggressive", "ones") for norm in ("paper", "unbiased")],
-        *[(f"ipg_her_nu{nu}", IPG, REACH, ("--nu", nu)) for nu in NUS[:4]],
-        ("ipg_her_nu0.2_cv", IPG, REACH, ("--nu", "0.2", "--use-cv")),  # cv needs nu < 1
-        ("ipg_her_batch_states", IPG, REACH, ("--off-policy-states", "batch")),
-        *[(f"ipg_her_k{k}", IPG, REACH, ("--her-n-sampled-goal", k)) for k in ("1", "8")],
-        *[(f"ipg_her_{s}", IPG, REACH, ("--her-goal-selection-strategy", s))
-          for s in ("final", "episode")],
-    ]),
-    "eta": Suite((1, 2, 3), Report(), [
-        ("ppo_kl_300k", PPO, HOPPER, K300),
-        *[(f"qprop_{eta}_300k", QPROP, HOPPER, ("--eta-mode", eta, *K300))
-          for eta in ("batch-conservative", "conservative")],
-    ]),
+    "paper": Suite(
+        (1, 2, 3, 4, 5),
+        Report(figures="paper"),
+        [
+            ("ppo_kl", PPO, HOPPER, ()),
+            ("qprop_ppo", QPROP, HOPPER, ()),
+            ("ppo_kl", PPO, REACH, FETCH_EVAL),
+            ("qprop_ppo", QPROP, REACH, FETCH_EVAL),
+            ("ipg", IPG, REACH, ("--no-her",)),
+            ("ipg_her", IPG, REACH, ()),
+        ],
+    ),
+    "ablations": Suite(
+        (1, 2, 3),
+        Report(),
+        [
+            *[
+                (f"qprop_{eta}_{norm}", QPROP, HOPPER, ("--eta-mode", eta, "--normalization", norm))
+                for eta in ("conservative", "aggressive", "ones")
+                for norm in ("paper", "unbiased")
+            ],
+            *[(f"ipg_her_nu{nu}", IPG, REACH, ("--nu", nu)) for nu in NUS[:4]],
+            ("ipg_her_nu0.2_cv", IPG, REACH, ("--nu", "0.2", "--use-cv")),  # cv needs nu < 1
+            ("ipg_her_batch_states", IPG, REACH, ("--off-policy-states", "batch")),
+            *[(f"ipg_her_k{k}", IPG, REACH, ("--her-n-sampled-goal", k)) for k in ("1", "8")],
+            *[(f"ipg_her_{s}", IPG, REACH, ("--her-goal-selection-strategy", s)) for s in ("final", "episode")],
+        ],
+    ),
+    "eta": Suite(
+        (1, 2, 3),
+        Report(),
+        [
+            ("ppo_kl_300k", PPO, HOPPER, K300),
+            *[
+                (f"qprop_{eta}_300k", QPROP, HOPPER, ("--eta-mode", eta, *K300))
+                for eta in ("batch-conservative", "conservative")
+            ],
+        ],
+    ),
     # the screen on seeds 1-5, the finalists also on fresh seeds from 11 on (--seeds)
-    "mixing": Suite((1, 2, 3, 4, 5), Report(figures="mixing", finalists_from=11), [
-        *[(f"ipg_her_nu{nu}_{batch}" + ("_cv" if cv else ""), IPG, REACH,
-           ("--nu", nu, *(flags if cv or nu != "0.0" else critic_free(flags)),
-            *(("--use-cv",) if cv else ())))
-          for batch, flags in BATCHES.items() for cv in (False, True) for nu in NUS
-          if not (cv and nu == "1.0")],  # at nu = 1 the term the cv enters has no weight
-        # nu = 1 with Q_bar sampled: sigma learns from the critic, as it does at nu < 1
-        ("ipg_her_nu1.0_b100_qsample", IPG, REACH, ("--q-bar", "sample", *EVERY)),
-        *[(f"ipg_nu{nu}_300k", IPG, HOPPER,
-           ("--nu", nu, *(HOPPER_IPG if nu != "0.0" else critic_free(HOPPER_IPG))))
-          for nu in NUS],
-        ("ipg_nu0.0_1M", IPG, HOPPER, ("--nu", "0.0", *critic_free(
-            ("--total-timesteps", "1000000", "--resume-freq", "100000", *HOPPER_IPG[2:])))),
-        # the IPG paper's best variant: nu 0.2, control variate, on-policy states
-        ("ipg_nu0.2_cv_batch_300k", IPG, HOPPER,
-         ("--nu", "0.2", "--use-cv", "--off-policy-states", "batch", *HOPPER_IPG)),
-        # the off-policy end with DDPG's slow target, then with Q_bar sampled
-        ("ipg_nu1.0_tau0.005_300k", IPG, HOPPER, ("--nu", "1.0", "--tau", "0.005", *HOPPER_IPG)),
-        ("ipg_nu1.0_tau0.005_qsample_300k", IPG, HOPPER,
-         ("--nu", "1.0", "--tau", "0.005", "--q-bar", "sample", *HOPPER_IPG)),
-        *[(f"qprop_{eta}_300k", QPROP, HOPPER, ("--eta-mode", eta, *K300))
-          for eta in ("conservative", "batch-conservative")],
-        ("qprop_batch-conservative_critic2048_300k", QPROP, HOPPER,
-         ("--critic-steps", "2048", "--learning-starts", "10000", *K300)),
-    ]),
-    "hopper": Suite((4, 5, 6), Report(), [  # the regime was screened on seed 1
-        ("ppo_kl_300k", PPO, HOPPER, K300),
-        *[(f"ipg_td3_nu{nu}_300k", RECIPE, HOPPER, ("--nu", nu, *TD3)) for nu in ("1.0", "0.5")],
-        ("ipg_td3_bounds_nu1.0_300k", RECIPE, HOPPER,
-         ("--nu", "1.0", *TD3, "--bounds-loss", "1.0")),
-        ("ipg_td3_narrow_nu1.0_300k", RECIPE, HOPPER, ("--nu", "1.0", *TD3_NARROW), (8, 9, 10)),
-        # the critic's term at scale 1; the critic's target at a' ~ pi(s') on 14-16 ran with
-        # benchmarks/probes/screens/critic_target_and_clip.patch (its rows stay in the export)
-        ("ipg_td3_paper_nu1.0_300k", RECIPE, HOPPER,
-         ("--nu", "1.0", *TD3_NARROW, "--normalization", "paper"), (11, 12, 13)),
-        # nu 1 again on fresh trios, and nu 0.5 beside it on the last; PPO-KL on every trio
-        ("ipg_td3_nu1.0_300k", RECIPE, HOPPER, ("--nu", "1.0", *TD3), (14, 15, 16)),
-        ("ipg_td3_nu1.0_300k", RECIPE, HOPPER, ("--nu", "1.0", *TD3), (17, 18, 19)),
-        ("ipg_td3_nu0.5_300k", RECIPE, HOPPER, ("--nu", "0.5", *TD3), (17, 18, 19)),
-        *[("ppo_kl_300k", PPO, HOPPER, K300, trio)
-          for trio in ((8, 9, 10), (11, 12, 13), (14, 15, 16), (17, 18, 19))],
-        ("ipg_td3_nu1.0_1M", RECIPE, HOPPER,
-         ("--nu", "1.0", "--total-timesteps", "1000000", *TD3[len(K300) :]), (7,)),
-    ]),
+    "mixing": Suite(
+        (1, 2, 3, 4, 5),
+        Report(figures="mixing", finalists_from=11),
+        [
+            *[
+                (
+                    f"ipg_her_nu{nu}_{batch}" + ("_cv" if cv else ""),
+                    IPG,
+                    REACH,
+                    ("--nu", nu, *(flags if cv or nu != "0.0" else critic_free(flags)), *(("--use-cv",) if cv else ())),
+                )
+                for batch, flags in BATCHES.items()
+                for cv in (False, True)
+                for nu in NUS
+                if not (cv and nu == "1.0")
+            ],  # at nu = 1 the term the cv enters has no weight
+            # nu = 1 with Q_bar sampled: sigma learns from the critic, as it does at nu < 1
+            ("ipg_her_nu1.0_b100_qsample", IPG, REACH, ("--q-bar", "sample", *EVERY)),
+            *[
+                (f"ipg_nu{nu}_300k", IPG, HOPPER, ("--nu", nu, *(HOPPER_IPG if nu != "0.0" else critic_free(HOPPER_IPG))))
+                for nu in NUS
+            ],
+            (
+                "ipg_nu0.0_1M",
+                IPG,
+                HOPPER,
+                ("--nu", "0.0", *critic_free(("--total-timesteps", "1000000", "--resume-freq", "100000", *HOPPER_IPG[2:]))),
+            ),
+            # the IPG paper's best variant: nu 0.2, control variate, on-policy states
+            ("ipg_nu0.2_cv_batch_300k", IPG, HOPPER, ("--nu", "0.2", "--use-cv", "--off-policy-states", "batch", *HOPPER_IPG)),
+            # the off-policy end with DDPG's slow target, then with Q_bar sampled
+            ("ipg_nu1.0_tau0.005_300k", IPG, HOPPER, ("--nu", "1.0", "--tau", "0.005", *HOPPER_IPG)),
+            (
+                "ipg_nu1.0_tau0.005_qsample_300k",
+                IPG,
+                HOPPER,
+                ("--nu", "1.0", "--tau", "0.005", "--q-bar", "sample", *HOPPER_IPG),
+            ),
+            *[
+                (f"qprop_{eta}_300k", QPROP, HOPPER, ("--eta-mode", eta, *K300))
+                for eta in ("conservative", "batch-conservative")
+            ],
+            (
+                "qprop_batch-conservative_critic2048_300k",
+                QPROP,
+                HOPPER,
+                ("--critic-steps", "2048", "--learning-starts", "10000", *K300),
+            ),
+        ],
+    ),
+    "hopper": Suite(
+        (4, 5, 6),
+        Report(),
+        [  # the regime was screened on seed 1
+            ("ppo_kl_300k", PPO, HOPPER, K300),
+            *[(f"ipg_td3_nu{nu}_300k", RECIPE, HOPPER, ("--nu", nu, *TD3)) for nu in ("1.0", "0.5")],
+            ("ipg_td3_bounds_nu1.0_300k", RECIPE, HOPPER, ("--nu", "1.0", *TD3, "--bounds-loss", "1.0")),
+            ("ipg_td3_narrow_nu1.0_300k", RECIPE, HOPPER, ("--nu", "1.0", *TD3_NARROW), (8, 9, 10)),
+            # the critic's term at scale 1; the critic's target at a' ~ pi(s') on 14-16 ran with
+            # benchmarks/probes/screens/critic_target_and_clip.patch (its rows stay in the export)
+            (
+                "ipg_td3_paper_nu1.0_300k",
+                RECIPE,
+                HOPPER,
+                ("--nu", "1.0", *TD3_NARROW, "--normalization", "paper"),
+                (11, 12, 13),
+            ),
+            # nu 1 again on fresh trios, and nu 0.5 beside it on the last; PPO-KL on every trio
+            ("ipg_td3_nu1.0_300k", RECIPE, HOPPER, ("--nu", "1.0", *TD3), (14, 15, 16)),
+            ("ipg_td3_nu1.0_300k", RECIPE, HOPPER, ("--nu", "1.0", *TD3), (17, 18, 19)),
+            ("ipg_td3_nu0.5_300k", RECIPE, HOPPER, ("--nu", "0.5", *TD3), (17, 18, 19)),
+            *[("ppo_kl_300k", PPO, HOPPER, K300, trio) for trio in ((8, 9, 10), (11, 12, 13), (14, 15, 16), (17, 18, 19))],
+            ("ipg_td3_nu1.0_1M", RECIPE, HOPPER, ("--nu", "1.0", "--total-timesteps", "1000000", *TD3[len(K300) :]), (7,)),
+        ],
+    ),
     # the paper's IPG+HER, FetchReach's defaults, on Push (no recipe)
-    "push": Suite((1, 2, 3), Report(budgets=(100_000, 200_000, 300_000, 500_000, 1_000_000,
-                                             1_500_000), levels=(0.5, 0.9)), [
-        ("ipg_her_{k}k", IPG, PUSH, PUSH_BUDGET),
-        ("ipg_her_{k}k_qsample", IPG, PUSH, (*PUSH_BUDGET, "--q-bar", "sample")),
-        ("ipg_her_{k}k_nu0.8", IPG, PUSH, (*PUSH_BUDGET, "--nu", "0.8")),
-    ]),
+    "push": Suite(
+        (1, 2, 3),
+        Report(budgets=(100_000, 200_000, 300_000, 500_000, 1_000_000, 1_500_000), levels=(0.5, 0.9)),
+        [
+            ("ipg_her_{k}k", IPG, PUSH, PUSH_BUDGET),
+            ("ipg_her_{k}k_qsample", IPG, PUSH, (*PUSH_BUDGET, "--q-bar", "sample")),
+            ("ipg_her_{k}k_nu0.8", IPG, PUSH, (*PUSH_BUDGET, "--nu", "0.8")),
+        ],
+    ),
     # every row on seeds of its own, fresh ones unless said; figures in steps, median seed
-    "fetch": Suite((), Report(per_episode=False, median=True, levels=(0.5, 0.7, 0.9),
-                              budgets=(100_000, 150_000, 200_000, 300_000, 500_000, 1_000_000)), [
-        ("ipg_her_300k", RECIPE, PUSH, ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED),
-         (4, 5, 6, 7, 8)),
-        ("ipg_her_1critic_300k", RECIPE, PUSH,
-         ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED, *ONE_CRITIC), (4, 5, 6, 7, 8)),
-        ("ipg_her_500k", RECIPE, PICK, ("--total-timesteps", "500000", *FETCH_EVERY, *PICK_ROW),
-         (4, 5, 6)),
-        ("ipg_her_1000k", RECIPE, SLIDE,
-         ("--total-timesteps", "1000000", *FETCH_EVERY, *SLIDE_ROW, "--anneal-lr"), (7, 8, 9)),
-        # PickAndPlace's earlier defaults, one sigma rule for all dimensions: with grasped starts,
-        # and before them (on the tuning seeds) with and without the twin critic
-        ("ipg_her_grasped_500k", RECIPE, PICK, PICK_ONE_SIGMA, (4, 5, 6)),
-        ("ipg_her_nograsp_500k", RECIPE, PICK,
-         (*PICK_ONE_SIGMA, "--grasped-start", "0"), (1, 2, 3)),
-        ("ipg_her_nograsp_1critic_500k", RECIPE, PICK,
-         (*PICK_ONE_SIGMA, "--grasped-start", "0", *ONE_CRITIC), (1, 2, 3)),
-        # Slide before its annealed learning rates: its own defaults then, and Push's (one sigma
-        # rule for all dimensions, the action penalty) on the tuning seeds
-        ("ipg_her_constlr_1000k", RECIPE, SLIDE, (*SLIDE_CONSTLR, *SLIDE_ROW), (4, 5, 6)),
-        ("ipg_her_sigma1_1000k", RECIPE, SLIDE, (*SLIDE_CONSTLR, "--target-std", "1.0",
-         "--action-l2", "1.0", "--bounds-loss", "0.0"), (1, 2, 3)),
-        # mixing on Push, nu 0.8 and 0.5 at 200k; Push's --normalization paper weighs the terms
-        # nu sigma_A : (1 - nu), so eq. 10's nu is "_eq10"
-        *[(f"ipg_her{kind}_nu{nu}_200k", RECIPE, PUSH,
-           ("--total-timesteps", "200000", "--nu", nu, *FETCH_EVERY, *SUMMED, *flags), (4, 5, 6))
-          for kind, flags in (("", ()), ("_1critic", ONE_CRITIC),
-                              ("_eq10", ("--normalization", "unbiased")))
-          for nu in ("0.8", "0.5")],
-    ]),
+    "fetch": Suite(
+        (),
+        Report(
+            per_episode=False,
+            median=True,
+            levels=(0.5, 0.7, 0.9),
+            budgets=(100_000, 150_000, 200_000, 300_000, 500_000, 1_000_000),
+        ),
+        [
+            ("ipg_her_300k", RECIPE, PUSH, ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED), (4, 5, 6, 7, 8)),
+            (
+                "ipg_her_1critic_300k",
+                RECIPE,
+                PUSH,
+                ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED, *ONE_CRITIC),
+                (4, 5, 6, 7, 8),
+            ),
+            ("ipg_her_500k", RECIPE, PICK, ("--total-timesteps", "500000", *FETCH_EVERY, *PICK_ROW), (4, 5, 6)),
+            (
+                "ipg_her_1000k",
+                RECIPE,
+                SLIDE,
+                ("--total-timesteps", "1000000", *FETCH_EVERY, *SLIDE_ROW, "--anneal-lr"),
+                (7, 8, 9),
+            ),
+            # PickAndPlace's earlier defaults, one sigma rule for all dimensions: with grasped starts,
+            # and before them (on the tuning seeds) with and without the twin critic
+            ("ipg_her_grasped_500k", RECIPE, PICK, PICK_ONE_SIGMA, (4, 5, 6)),
+            ("ipg_her_nograsp_500k", RECIPE, PICK, (*PICK_ONE_SIGMA, "--grasped-start", "0"), (1, 2, 3)),
+            ("ipg_her_nograsp_1critic_500k", RECIPE, PICK, (*PICK_ONE_SIGMA, "--grasped-start", "0", *ONE_CRITIC), (1, 2, 3)),
+            # Slide before its annealed learning rates: its own defaults then, and Push's (one sigma
+            # rule for all dimensions, the action penalty) on the tuning seeds
+            ("ipg_her_constlr_1000k", RECIPE, SLIDE, (*SLIDE_CONSTLR, *SLIDE_ROW), (4, 5, 6)),
+            (
+                "ipg_her_sigma1_1000k",
+                RECIPE,
+                SLIDE,
+                (*SLIDE_CONSTLR, "--target-std", "1.0", "--action-l2", "1.0", "--bounds-loss", "0.0"),
+                (1, 2, 3),
+            ),
+            # mixing on Push, nu 0.8 and 0.5 at 200k; Push's --normalization paper weighs the terms
+            # nu sigma_A : (1 - nu), so eq. 10's nu is "_eq10"
+            *[
+                (
+                    f"ipg_her{kind}_nu{nu}_200k",
+                    RECIPE,
+                    PUSH,
+                    ("--total-timesteps", "200000", "--nu", nu, *FETCH_EVERY, *SUMMED, *flags),
+                    (4, 5, 6),
+                )
+                for kind, flags in (("", ()), ("_1critic", ONE_CRITIC), ("_eq10", ("--normalization", "unbiased")))
+                for nu in ("0.8", "0.5")
+            ],
+        ],
+    ),
     # the recipe's defaults on goal tasks no run was tuned on; figures in steps (a maze's
     # episode is not 50 steps)
-    "goals": Suite((301, 302, 303), Report(per_episode=False), [
-        ("ipg_her_300k", RECIPE, "HandReach-v3",
-         ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED)),
-        ("ipg_her_300k_std03", RECIPE, "HandReach-v3",  # chosen on seed 11
-         ("--total-timesteps", "300000", "--target-std", "0.3", *FETCH_EVERY)),
-        ("ipg_her_300k_std03x20", RECIPE, "HandReach-v3",  # one rule per joint, chosen on seed 11
-         ("--total-timesteps", "300000", "--target-std", *["0.3"] * 20, *FETCH_EVERY)),
-        ("ipg_her_1000k", RECIPE, "HandManipulateBlockRotateZ-v1",
-         ("--total-timesteps", "1000000", *FETCH_EVERY, *SUMMED, "--gamma", "0.98")),
-        ("ipg_her_300k", RECIPE, "PointMaze_Medium-v3",
-         ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED, "--gamma", "0.98")),
-        ("ipg_her_300k_gamma0995", RECIPE, "PointMaze_Medium-v3",  # chosen on seeds 11-12
-         ("--total-timesteps", "300000", "--gamma", "0.995", *FETCH_EVERY, *SUMMED)),
-    ]),
+    "goals": Suite(
+        (301, 302, 303),
+        Report(per_episode=False),
+        [
+            ("ipg_her_300k", RECIPE, "HandReach-v3", ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED)),
+            (
+                "ipg_her_300k_std03",
+                RECIPE,
+                "HandReach-v3",  # chosen on seed 11
+                ("--total-timesteps", "300000", "--target-std", "0.3", *FETCH_EVERY),
+            ),
+            (
+                "ipg_her_300k_std03x20",
+                RECIPE,
+                "HandReach-v3",  # one rule per joint, chosen on seed 11
+                ("--total-timesteps", "300000", "--target-std", *["0.3"] * 20, *FETCH_EVERY),
+            ),
+            (
+                "ipg_her_1000k",
+                RECIPE,
+                "HandManipulateBlockRotateZ-v1",
+                ("--total-timesteps", "1000000", *FETCH_EVERY, *SUMMED, "--gamma", "0.98"),
+            ),
+            (
+                "ipg_her_300k",
+                RECIPE,
+                "PointMaze_Medium-v3",
+                ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED, "--gamma", "0.98"),
+            ),
+            (
+                "ipg_her_300k_gamma0995",
+                RECIPE,
+                "PointMaze_Medium-v3",  # chosen on seeds 11-12
+                ("--total-timesteps", "300000", "--gamma", "0.995", *FETCH_EVERY, *SUMMED),
+            ),
+        ],
+    ),
     # the recipe's defaults as task_defaults derives them, no flag but the budget, on every
     # goal task, seeds none of its settings was chosen on; figures in steps (a maze's episode
     # is not 50 steps)
-    "one_recipe": Suite((401, 402, 403), Report(per_episode=False, median=True,
-                        levels=(0.5, 0.7, 0.9), budgets=(100_000, 150_000, 300_000, 500_000,
-                                                          1_000_000)), [
-        (f"ipg_her_{steps // 1000}k", RECIPE, env_id,
-         ("--total-timesteps", str(steps), *FETCH_EVERY))
-        for env_id, steps in ((PUSH, 300_000), (PICK, 500_000), (SLIDE, 1_000_000),
-                              ("HandReach-v3", 300_000), ("PointMaze_Medium-v3", 300_000),
-                              ("HandManipulateBlockRotateZ-v1", 1_000_000))
-    ]),
-    "quick": Suite((1,), Report(figures="paper"), [  # the paper's grid, tiny budgets
-        ("ppo_kl", PPO, HOPPER, ("--total-timesteps", "512", *TINY)),
-        ("qprop_ppo", QPROP, HOPPER,
-         ("--total-timesteps", "512", "--learning-starts", "256", "--critic-steps", "4", *TINY)),
-        ("ppo_kl", PPO, REACH, ("--total-timesteps", "300", "--num-envs", "2", "--num-steps", "50",
-                                "--num-minibatches", "4", "--eval-episodes", "2")),
-        ("ipg", IPG, REACH, ("--no-her", *TINY_IPG)),
-        ("ipg_her", IPG, REACH, TINY_IPG),
-    ]),
-}  # fmt: skip
+    "one_recipe": Suite(
+        (401, 402, 403),
+        Report(
+            per_episode=False, median=True, levels=(0.5, 0.7, 0.9), budgets=(100_000, 150_000, 300_000, 500_000, 1_000_000)
+        ),
+        [
+            (f"ipg_her_{steps // 1000}k", RECIPE, env_id, ("--total-timesteps", str(steps), *FETCH_EVERY))
+            for env_id, steps in (
+                (PUSH, 300_000),
+                (PICK, 500_000),
+                (SLIDE, 1_000_000),
+                ("HandReach-v3", 300_000),
+                ("PointMaze_Medium-v3", 300_000),
+                ("HandManipulateBlockRotateZ-v1", 1_000_000),
+            )
+        ],
+    ),
+    "quick": Suite(
+        (1,),
+        Report(figures="paper"),
+        [  # the paper's grid, tiny budgets
+            ("ppo_kl", PPO, HOPPER, ("--total-timesteps", "512", *TINY)),
+            (
+                "qprop_ppo",
+                QPROP,
+                HOPPER,
+                ("--total-timesteps", "512", "--learning-starts", "256", "--critic-steps", "4", *TINY),
+            ),
+            (
+                "ppo_kl",
+                PPO,
+                REACH,
+                (
+                    "--total-timesteps",
+                    "300",
+                    "--num-envs",
+                    "2",
+                    "--num-steps",
+                    "50",
+                    "--num-minibatches",
+                    "4",
+                    "--eval-episodes",
+                    "2",
+                ),
+            ),
+            ("ipg", IPG, REACH, ("--no-her", *TINY_IPG)),
+            ("ipg_her", IPG, REACH, TINY_IPG),
+        ],
+    ),
+}
 
 
 def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_000) -> list[Run]:
@@ -303,6 +488,5 @@ def suite_runs(suite: str, seeds: tuple[int, ...] = (), push_steps: int = 1_500_
     for name, script, env_id, flags, *own in rows:
         row_seeds = own[0] if own else suite_seeds
         row_seeds = (seeds[:1] if own and len(row_seeds) == 1 else seeds) or row_seeds
-        runs += [Run(fill(name), script, env_id, seed, tuple(map(fill, flags)))
-                 for seed in row_seeds]  # fmt: skip
+        runs += [Run(fill(name), script, env_id, seed, tuple(map(fill, flags))) for seed in row_seeds]
     return list(dict.fromkeys(runs))

@@ -24,9 +24,11 @@ LABELS = {"ppo_kl": "PPO-KL", "qprop_ppo": "Q-Prop", "ipg": "IPG (no HER)", "ipg
 
 
 def table(groups: dict, window: int) -> str:
-    rows = ["| task | algorithm | seeds | final (mean ± sample std) | final median | final IQM "
-            "| final eval | steps to threshold (median) | SPS | wall time (s) |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+    rows = [
+        "| task | algorithm | seeds | final (mean ± sample std) | final median | final IQM "
+        "| final eval | steps to threshold (median) | SPS | wall time (s) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for group in sorted(groups, key=lambda g: (g.split("__")[1], g)):
         name, env_id = group.split("__")
         runs = list(groups[group].values())
@@ -38,15 +40,16 @@ def table(groups: dict, window: int) -> str:
         median, k = median_steps(reach), int(np.isfinite(reach).sum())
         reach_text = f"{median:,.0f}" if np.isfinite(median) else "not reached"
         running = sum(1 for r in runs if "unfinished_at" in r and not np.isfinite(r["reach"]))
-        reach_text += f" ({k}/{len(runs)} seeds" + (f"; {running} not yet, still running)"
-                                                     if running else ")")  # fmt: skip
+        reach_text += f" ({k}/{len(runs)} seeds" + (f"; {running} not yet, still running)" if running else ")")
         sps = np.mean([r["charts/SPS"][-1][1] for r in runs if r.get("charts/SPS")])
         wall = np.mean([r["wall_time"] for r in runs])
         f = ".2f" if goal else ".0f"
-        rows.append(f"| {env_id} | {LABELS.get(name, name)}{row_marks(runs)} | {len(runs)} "
-                    f"| {final.mean():{f}} ± {final.std(ddof=1):{f}} | {np.median(final):{f}} "
-                    f"| {iqm(final):{f}} | {final_eval.mean():{f}} | {reach_text} | {sps:.0f} "
-                    f"| {wall:.0f} |")  # fmt: skip
+        rows.append(
+            f"| {env_id} | {LABELS.get(name, name)}{row_marks(runs)} | {len(runs)} "
+            f"| {final.mean():{f}} ± {final.std(ddof=1):{f}} | {np.median(final):{f}} "
+            f"| {iqm(final):{f}} | {final_eval.mean():{f}} | {reach_text} | {sps:.0f} "
+            f"| {wall:.0f} |"
+        )
     return "\n".join(rows)
 
 
@@ -56,12 +59,12 @@ def success_table(groups: dict, budgets=(2500, 5000, 10000, 30000)) -> str:
     leaves out a run whose own budget is smaller, and a run still in progress that has not
     reached the column's budget (either would show an earlier evaluation there); the count of
     seeds is given when not all."""
-    last = max((r["eval/success_rate"][-1][0] for g in groups.values() for r in g.values()
-                if r.get("eval/success_rate")), default=0)  # fmt: skip
+    last = max(
+        (r["eval/success_rate"][-1][0] for g in groups.values() for r in g.values() if r.get("eval/success_rate")), default=0
+    )
     checkpoints = [c for c in budgets if c <= last] or ([last] if last else [])
     columns = " | ".join(f"eval success @ {c:,} steps" for c in checkpoints)
-    rows = [f"| task | algorithm | {columns} |",
-            "| --- | --- | " + " | ".join("---" for _ in checkpoints) + " |"]  # fmt: skip
+    rows = [f"| task | algorithm | {columns} |", "| --- | --- | " + " | ".join("---" for _ in checkpoints) + " |"]
     for group in sorted(groups):
         name, env_id = group.split("__")
         runs = [r for r in groups[group].values() if r.get("eval/success_rate")]
@@ -77,11 +80,7 @@ def success_table(groups: dict, budgets=(2500, 5000, 10000, 30000)) -> str:
             ]
             values = [v for v in values if np.isfinite(v)]
             seeds = f" ({len(values)} of {len(runs)} seeds)" if len(values) < len(runs) else ""
-            cells.append(
-                f"{np.median(values):.2f} [{min(values):.2f}, {max(values):.2f}]{seeds}"
-                if values
-                else "-"
-            )
+            cells.append(f"{np.median(values):.2f} [{min(values):.2f}, {max(values):.2f}]{seeds}" if values else "-")
         rows.append(f"| {env_id} | {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
     return "\n".join(rows) if len(rows) > 2 else ""
 
@@ -89,24 +88,20 @@ def success_table(groups: dict, budgets=(2500, 5000, 10000, 30000)) -> str:
 def reach_table(groups: dict, levels: tuple[float, ...]) -> str:
     """Goal tasks: per seed, the steps and training hours to the first evaluation at each level;
     a run in progress that has not reached a level is "not yet", a finished one "never"."""
-    head = " | ".join(
-        f"first eval >= {x}: steps (training h) per seed | median steps" for x in levels
-    )
+    head = " | ".join(f"first eval >= {x}: steps (training h) per seed | median steps" for x in levels)
     rows = [f"| task | algorithm | {head} |", "| --- | --- |" + " --- |" * 2 * len(levels)]
     for group in sorted(groups):
         name, env_id = group.split("__")
-        runs = [r for _, r in sorted(groups[group].items(), key=lambda kv: int(kv[0]))
-                if r.get("eval/success_rate")]  # fmt: skip
+        runs = [r for _, r in sorted(groups[group].items(), key=lambda kv: int(kv[0])) if r.get("eval/success_rate")]
         if not runs:
             continue
         cells = []
         for level in levels:
             reached = [first_eval_at(r, level) for r in runs]
             per_seed = [
-                f"{step:,.0f} ({sec / 3600:.1f})" if np.isfinite(step)
-                else "not yet" if "unfinished_at" in r else "never"
+                f"{step:,.0f} ({sec / 3600:.1f})" if np.isfinite(step) else "not yet" if "unfinished_at" in r else "never"
                 for (step, sec), r in zip(reached, runs, strict=True)
-            ]  # fmt: skip
+            ]
             median = median_steps(np.array([step for step, _ in reached]))
             cells += [" / ".join(per_seed), f"{median:,.0f}" if np.isfinite(median) else "-"]
         rows.append(f"| {env_id} | {LABELS.get(name, name)} | " + " | ".join(cells) + " |")
@@ -199,11 +194,11 @@ def task_tables(groups: dict, peers: dict, seed: int) -> str:
     for env_id in sorted({g.split("__")[1] for g in groups}):
         tag, levels = task_levels(env_id)
         goal, digits = tag == "eval/success_rate", 2 if tag == "eval/success_rate" else 0
-        head = "".join(f" first eval >= {x:g}: median steps (seeds there) | median time |"
-                       for x in levels)  # fmt: skip
-        rows = [f"| algorithm | seeds | final eval: median [95% CI] | final eval: IQM [95% CI] "
-                f"|{head} eval every | steps/s |",
-                "|" + " --- |" * (6 + 2 * len(levels))]  # fmt: skip
+        head = "".join(f" first eval >= {x:g}: median steps (seeds there) | median time |" for x in levels)
+        rows = [
+            f"| algorithm | seeds | final eval: median [95% CI] | final eval: IQM [95% CI] |{head} eval every | steps/s |",
+            "|" + " --- |" * (6 + 2 * len(levels)),
+        ]
         for group in sorted(g for g in groups if g.endswith(f"__{env_id}")):
             name = group.split("__")[0]
             seeds = sorted(groups[group], key=int)
@@ -211,30 +206,33 @@ def task_tables(groups: dict, peers: dict, seed: int) -> str:
             rng = np.random.default_rng([seed, zlib.crc32(group.encode())])
             finals = [r[tag][-1][1] for r in runs if r.get(tag)]
             of = f" ({len(finals)} seeds)" if len(finals) < len(runs) else ""
-            cells = [f"{len(runs)} ({seed_ranges(seeds)})",
-                     with_interval(finals, np.median, rng, digits) + of,
-                     with_interval(finals, iqm, rng, digits) + of]  # fmt: skip
+            cells = [
+                f"{len(runs)} ({seed_ranges(seeds)})",
+                with_interval(finals, np.median, rng, digits) + of,
+                with_interval(finals, iqm, rng, digits) + of,
+            ]
             for level in levels:
                 reached = [first_eval_at(r, level, tag) for r in runs]
-                running = sum(1 for (step, _), r in zip(reached, runs, strict=True)
-                              if "unfinished_at" in r and not np.isfinite(step))  # fmt: skip
+                running = sum(
+                    1 for (step, _), r in zip(reached, runs, strict=True) if "unfinished_at" in r and not np.isfinite(step)
+                )
                 cells += reach_cells(*zip(*reached, strict=True), running)
             sps = [r["charts/SPS"][-1][1] for r in runs if r.get("charts/SPS")]
-            cells += [eval_every([r.get(tag, []) for r in runs]),
-                      f"{np.mean(sps):.0f}" if sps else "-"]  # fmt: skip
+            cells += [eval_every([r.get(tag, []) for r in runs]), f"{np.mean(sps):.0f}" if sps else "-"]
             label = LABELS.get(name, name) + row_marks(runs)
             rows.append(f"| {label} | " + " | ".join(cells) + " |")
         for peer in peers.get(env_id, []) if goal else []:
             rng = np.random.default_rng([seed, zlib.crc32(peer.label.encode())])
             finals = [c[-1][1] for c in peer.curves]
-            cells = [peer.seeds, with_interval(finals, np.median, rng, digits) if finals else "n/a",
-                     with_interval(finals, iqm, rng, digits) if finals else "n/a"]  # fmt: skip
+            cells = [
+                peer.seeds,
+                with_interval(finals, np.median, rng, digits) if finals else "n/a",
+                with_interval(finals, iqm, rng, digits) if finals else "n/a",
+            ]
             for level in levels:
                 recorded = level in peer.first
-                cells += reach_cells(peer.first[level], peer.seconds.get(level)) if recorded \
-                    else ("n/a", "n/a")  # fmt: skip
-            cells += [eval_every(peer.curves) if peer.curves else "n/a",
-                      f"{np.mean(peer.sps):.0f}" if peer.sps else "n/a"]  # fmt: skip
+                cells += reach_cells(peer.first[level], peer.seconds.get(level)) if recorded else ("n/a", "n/a")
+            cells += [eval_every(peer.curves) if peer.curves else "n/a", f"{np.mean(peer.sps):.0f}" if peer.sps else "n/a"]
             rows.append(f"| {peer.label} | " + " | ".join(cells) + " |")
         what = "evaluation success" if goal else "evaluation return"
         anchors = [p.label.split(" (")[0] for p in peers.get(env_id, []) if p.anchor and goal]
@@ -248,13 +246,15 @@ def task_tables_note(groups: dict, peers: dict) -> str:
     """The per-task tables' caption: how each column was derived, the anchors' sources, and how
     far the suite's wall time is from the training time the time columns are derived from."""
     runs = [r for g in groups.values() for r in g.values() if r.get("charts/SPS")]
-    ratios = [r["wall_time"] * r["charts/SPS"][-1][1] / r["charts/SPS"][-1][0] for r in runs
-              if r.get("wall_time") and r["charts/SPS"][-1][1] > 0]  # fmt: skip
+    ratios = [
+        r["wall_time"] * r["charts/SPS"][-1][1] / r["charts/SPS"][-1][0]
+        for r in runs
+        if r.get("wall_time") and r["charts/SPS"][-1][1] > 0
+    ]
     envs = {g.split("__")[1] for g in groups}
     hopper = any(task_levels(e)[0] == "eval/episodic_return" for e in envs)
     goal = any(task_levels(e)[0] == "eval/success_rate" for e in envs)
-    shown = {p.label: p for e in envs if task_levels(e)[0] == "eval/success_rate"
-             for p in peers.get(e, [])}  # fmt: skip
+    shown = {p.label: p for e in envs if task_levels(e)[0] == "eval/success_rate" for p in peers.get(e, [])}
     what = ["the success rate (goal tasks)"] * goal + ["the mean return (Hopper)"] * hopper
     what = " and ".join(what)
     text = (
@@ -315,8 +315,10 @@ def finalists_table(groups: dict, rng, first_fresh: int) -> str:
     variant, the mean and 95% bootstrap interval over those seeds of the last evaluation at or
     before an early budget (labelled with the step it was at) and at the end, and of the final
     training figure. Empty if no variant has two."""
-    rows = ["| task | algorithm | fresh seeds | eval @ early budget | last eval "
-            "| final (training) |", "| --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+    rows = [
+        "| task | algorithm | fresh seeds | eval @ early budget | last eval | final (training) |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
     for group in sorted(groups):
         name, env_id = group.split("__")
         seeds = sorted(int(s) for s in groups[group] if int(s) >= first_fresh)
@@ -324,12 +326,10 @@ def finalists_table(groups: dict, rng, first_fresh: int) -> str:
         if len(runs) < 2:
             continue
         goal = reported_by_success(env_id)
-        tag, early, digits = ("eval/success_rate", 2_500, 2) if goal else \
-            ("eval/episodic_return", 100_000, 0)  # fmt: skip
+        tag, early, digits = ("eval/success_rate", 2_500, 2) if goal else ("eval/episodic_return", 100_000, 0)
         cells = [
             f"{len(runs)} ({seeds[0]}-{seeds[-1]})",
-            f"@ {steps_at(runs, tag, early)}: "
-            + mean_and_interval([value_at(r, tag, early) for r in runs], rng, digits),
+            f"@ {steps_at(runs, tag, early)}: " + mean_and_interval([value_at(r, tag, early) for r in runs], rng, digits),
             mean_and_interval([r[tag][-1][1] for r in runs], rng, digits),
             mean_and_interval([r["final"] for r in runs], rng, digits),
         ]
@@ -341,8 +341,10 @@ def diagnostics_table(groups: dict) -> str:
     """The mixed gradients' diagnostics per variant: effective nu, the gradient-variance ratio
     with / without the control variate, corr(A_hat, A_bar); each the median over a run's
     updates, then the median [min, max] over seeds. Empty if no run logged them."""
-    rows = ["| task | algorithm | seeds | effective nu | variance ratio, with CV / without | "
-            "corr(A_hat, A_bar) |", "| --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+    rows = [
+        "| task | algorithm | seeds | effective nu | variance ratio, with CV / without | corr(A_hat, A_bar) |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
     for group in sorted(groups):
         name, env_id = group.split("__")
         runs = list(groups[group].values())
@@ -354,7 +356,5 @@ def diagnostics_table(groups: dict) -> str:
             median_and_range([variance_ratio(r, prefix) for r in runs]),
             median_and_range([median_over_updates(r, f"{prefix}/corr_adv_cv") for r in runs]),
         ]
-        rows.append(
-            f"| {env_id} | {LABELS.get(name, name)} | {len(runs)} | " + " | ".join(cells) + " |"
-        )
+        rows.append(f"| {env_id} | {LABELS.get(name, name)} | {len(runs)} | " + " | ".join(cells) + " |")
     return "\n".join(rows) if len(rows) > 2 else ""

@@ -104,8 +104,10 @@ class BackgroundEvaluator:
         if self.pool is not None:
             self.pool.shutdown(wait=True, cancel_futures=True)
             self.pool = None
-            self.warn("warning: the evaluation worker died; evaluations run in the training "
-                      "process from now on (training goes on, slower)")  # fmt: skip
+            self.warn(
+                "warning: the evaluation worker died; evaluations run in the training "
+                "process from now on (training goes on, slower)"
+            )
 
     def close(self, at_once: bool = False) -> None:
         """Stop the worker: ``at_once`` (an interrupted run) or with evaluations pending, end the

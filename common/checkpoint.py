@@ -34,11 +34,30 @@ FORMAT_VERSION = 3  # 3: the networks' layer kinds beside their weights
 SCRIPT = os.path.basename(sys.argv[0])  # the script running, e.g. ipg_her.py
 RESUME_FILE = "resume.pt"
 # may differ on --resume: how long, how often saved, evaluation workers, the run's label
-RESUMABLE_ARGS = ("resume", "resume_freq", "total_timesteps", "eval_workers", "exp_name", "track",
-                  "wandb_project_name", "wandb_entity")  # fmt: skip
+RESUMABLE_ARGS = (
+    "resume",
+    "resume_freq",
+    "total_timesteps",
+    "eval_workers",
+    "exp_name",
+    "track",
+    "wandb_project_name",
+    "wandb_entity",
+)
 # what every resume.pt holds besides the script's parts (common/run.py writes and reads them)
-RESUME_FIELDS = ("script", "args", "rng", "scalars", "iteration", "global_step", "train_time",
-                 "last_eval", "last_save", "recent_success", "eval_seeds")  # fmt: skip
+RESUME_FIELDS = (
+    "script",
+    "args",
+    "rng",
+    "scalars",
+    "iteration",
+    "global_step",
+    "train_time",
+    "last_eval",
+    "last_save",
+    "recent_success",
+    "eval_seeds",
+)
 
 
 class CheckpointError(ValueError):
@@ -71,14 +90,14 @@ def layers(module: torch.nn.Module) -> dict[str, list[str]]:
     """The kinds of the layers of each ``nn.Sequential`` in ``module`` (``["Linear", "Tanh",
     ...]``): with its weights, what rebuilds the network without the script's code."""
     children = module.named_children()
-    return {name: [type(layer).__name__ for layer in child]
-            for name, child in children if isinstance(child, torch.nn.Sequential)}  # fmt: skip
+    return {
+        name: [type(layer).__name__ for layer in child] for name, child in children if isinstance(child, torch.nn.Sequential)
+    }
 
 
 def with_layers(content: dict, parts: dict) -> dict:
     """``content`` and, for each network among ``parts``, its ``layers`` as ``NAME_layers``."""
-    return content | {f"{name}_layers": layers(part) for name, part in parts.items()
-                      if isinstance(part, torch.nn.Module)}  # fmt: skip
+    return content | {f"{name}_layers": layers(part) for name, part in parts.items() if isinstance(part, torch.nn.Module)}
 
 
 def state(model: dict) -> dict:
@@ -94,23 +113,21 @@ def not_finite(value, name: str = "") -> list[str]:
     """The names of the tensors and arrays in ``value`` (nested dicts) holding NaN or infinity
     (only NaN in ``BOUNDS``)."""
     if isinstance(value, dict):
-        return [
-            bad for key, v in value.items() for bad in not_finite(v, f"{name}.{key}".strip("."))
-        ]
+        return [bad for key, v in value.items() for bad in not_finite(v, f"{name}.{key}".strip("."))]
     if torch.is_tensor(value) and value.is_floating_point() and name.split(".")[-1] in BOUNDS:
         return [name] if value.isnan().any() else []
     if torch.is_tensor(value) and value.is_floating_point():
         return [] if torch.isfinite(value).all() else [name]
-    if isinstance(value, np.ndarray | float) and np.issubdtype(
-        np.asarray(value).dtype, np.floating
-    ):
+    if isinstance(value, np.ndarray | float) and np.issubdtype(np.asarray(value).dtype, np.floating):
         return [] if np.isfinite(value).all() else [name]
     return []
 
 
 def save(path: str, args, last_eval_seeds: list[int], **model) -> None:
-    _write({"format_version": FORMAT_VERSION, "args": dict(vars(args)),
-            "last_eval_seeds": list(last_eval_seeds), **state(model)}, path)  # fmt: skip
+    _write(
+        {"format_version": FORMAT_VERSION, "args": dict(vars(args)), "last_eval_seeds": list(last_eval_seeds), **state(model)},
+        path,
+    )
 
 
 def _write(content: dict, path: str) -> None:
@@ -133,8 +150,7 @@ def _write(content: dict, path: str) -> None:
 
 def rng_states() -> dict:
     """The global generators: python's ``random``, numpy's legacy one, torch's."""
-    return {"random": random.getstate(), "numpy": np.random.get_state(),
-            "torch": torch.get_rng_state()}  # fmt: skip
+    return {"random": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
 
 
 def set_rng_states(states: dict) -> None:
@@ -155,8 +171,10 @@ def save_resume_state(run_dir: str, args, **content) -> None:
         return value.bit_generator.state if isinstance(value, np.random.Generator) else value
 
     content = with_layers({key: saved(value) for key, value in content.items()}, content)
-    _write({"format_version": FORMAT_VERSION, "script": SCRIPT, "args": dict(vars(args)),
-            **content}, os.path.join(run_dir, RESUME_FILE))  # fmt: skip
+    _write(
+        {"format_version": FORMAT_VERSION, "script": SCRIPT, "args": dict(vars(args)), **content},
+        os.path.join(run_dir, RESUME_FILE),
+    )
 
 
 def load_resume_state(run_dir: str, args) -> dict:
@@ -166,8 +184,9 @@ def load_resume_state(run_dir: str, args) -> dict:
         raise CheckpointError(f"--resume {run_dir}: no such run folder")
     path = os.path.join(run_dir, RESUME_FILE)
     if not os.path.isfile(path):
-        raise CheckpointError(f"no {RESUME_FILE} in {run_dir} (the run must be started with "
-                              "--resume-freq for it to be written)")  # fmt: skip
+        raise CheckpointError(
+            f"no {RESUME_FILE} in {run_dir} (the run must be started with --resume-freq for it to be written)"
+        )
     content = _read(path)
     if missing := [key for key in RESUME_FIELDS if key not in content]:
         what = "a model.pt, not a resume point" if "script" not in content else "an incomplete file"
@@ -176,14 +195,17 @@ def load_resume_state(run_dir: str, args) -> dict:
     saved = {f.name: f.default for f in dataclasses.fields(args)} | content["args"]
     if content["script"] != SCRIPT:
         raise CheckpointError(f"{run_dir} is a run of {content['script']}; resume it with that")
-    differ = [f"{flag(k)} {saved.get(k)!r} (now {v!r})"
-              for k, v in vars(args).items()
-              if k not in RESUMABLE_ARGS and saved.get(k) != v]  # fmt: skip
+    differ = [
+        f"{flag(k)} {saved.get(k)!r} (now {v!r})"
+        for k, v in vars(args).items()
+        if k not in RESUMABLE_ARGS and saved.get(k) != v
+    ]
     if getattr(args, "anneal_lr", False) and args.total_timesteps != saved["total_timesteps"]:
         differ.append("--total-timesteps with --anneal-lr (the schedule would jump)")
     if differ:
-        raise CheckpointError(f"{run_dir} was run with other arguments: {', '.join(differ)}; "
-                              "resume it with the command that started it")  # fmt: skip
+        raise CheckpointError(
+            f"{run_dir} was run with other arguments: {', '.join(differ)}; resume it with the command that started it"
+        )
     return content
 
 
@@ -204,8 +226,9 @@ def load(path: str) -> dict:
     if os.path.isdir(path):
         names = [os.path.join(path, name) for name in ("model.pt", RESUME_FILE)]
         if not (found := [name for name in names if os.path.isfile(name)]):
-            raise CheckpointError(f"no model.pt or {RESUME_FILE} in {path}: a run writes "
-                                  "them only with --save-model or --resume-freq")  # fmt: skip
+            raise CheckpointError(
+                f"no model.pt or {RESUME_FILE} in {path}: a run writes them only with --save-model or --resume-freq"
+            )
         path = found[0]
     if not os.path.isfile(path):
         raise CheckpointError(f"no such file: {path}")
@@ -213,16 +236,21 @@ def load(path: str) -> dict:
     if "agent" not in content or "normalizer" not in content:
         raise CheckpointError(f"{path} holds no policy: it is not a model.pt or a resume.pt")
     if bad := not_finite({"agent": content["agent"], "normalizer": content["normalizer"]}):
-        raise CheckpointError(f"{path} holds NaN or infinite values ({', '.join(bad[:3])}): "
-                              "a run stopped by a NaN loss; use an earlier checkpoint")  # fmt: skip
+        raise CheckpointError(
+            f"{path} holds NaN or infinite values ({', '.join(bad[:3])}): "
+            "a run stopped by a NaN loss; use an earlier checkpoint"
+        )
     if "script" in content:  # a resume.pt: what a model.pt names, read from what it holds
         goals = "obs_rms" in content["normalizer"]
-        content |= {"normalizer_class": "InputNormalizer" if goals else "RunningMeanStd",
-                    "last_eval_seeds": content.get("eval_seeds")}  # fmt: skip
+        content |= {
+            "normalizer_class": "InputNormalizer" if goals else "RunningMeanStd",
+            "last_eval_seeds": content.get("eval_seeds"),
+        }
     fields = {"args": dict, "last_eval_seeds": list, "normalizer_class": str}  # save()'s, state()'s
     if bad := [name for name, kind in fields.items() if not isinstance(content.get(name), kind)]:
-        raise CheckpointError(f"{path} lacks a readable {', '.join(bad)}: it is not a whole "
-                              "model.pt or resume.pt of these scripts")  # fmt: skip
+        raise CheckpointError(
+            f"{path} lacks a readable {', '.join(bad)}: it is not a whole model.pt or resume.pt of these scripts"
+        )
     return content
 
 
@@ -246,6 +274,5 @@ def _read(path: str) -> dict:
         raise CheckpointError(corrupt(path)) from e
     if not isinstance(content, dict) or content.get("format_version") != FORMAT_VERSION:
         version = content.get("format_version") if isinstance(content, dict) else None
-        raise CheckpointError(f"{path} has checkpoint format {version!r}; this code reads format "
-                              f"{FORMAT_VERSION}")  # fmt: skip
+        raise CheckpointError(f"{path} has checkpoint format {version!r}; this code reads format {FORMAT_VERSION}")
     return unplain(content)

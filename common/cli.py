@@ -41,8 +41,7 @@ def interrupted_while_loading(signum, frame) -> NoReturn:
 sys.excepthook = interrupted  # before the slow imports below
 MAIN = getattr(sys.modules.get("__main__"), "__file__", None)  # the script run (none in a shell)
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-if (MAIN and os.path.abspath(MAIN).startswith(ROOT + os.sep)
-        and signal.getsignal(signal.SIGINT) is signal.default_int_handler):  # fmt: skip
+if MAIN and os.path.abspath(MAIN).startswith(ROOT + os.sep) and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
     signal.signal(signal.SIGINT, interrupted_while_loading)  # a script of ours, Ctrl-C not ignored
 
 import numpy as np  # noqa: E402
@@ -59,9 +58,13 @@ def fail(message: str) -> NoReturn:
     sys.exit(2)
 
 
-def parse_args(args_class: type[A], argv: list[str] | None = None, prog: str | None = None,
-               task_defaults: Callable[[str], dict] | None = None,
-               ignored: Callable[[A], dict[str, str]] | None = None) -> A:  # fmt: skip
+def parse_args(
+    args_class: type[A],
+    argv: list[str] | None = None,
+    prog: str | None = None,
+    task_defaults: Callable[[str], dict] | None = None,
+    ignored: Callable[[A], dict[str, str]] | None = None,
+) -> A:
     """``tyro.cli``, with a parse error reduced to one line (tyro draws a box). ``task_defaults``
     ``env_id -> {field: value}``: the task's own defaults, for the fields not given in ``argv``
     (in any spelling) nor ``ignored(args)`` (``{flag: why}``, the flags the run would ignore);
@@ -105,8 +108,11 @@ def parse_error(box: str) -> str:
         value = " ".join(quoted if union else quoted[-1:])
         metavar = next((k for k in EXPECTS if m[3].startswith(f"{k} ")), m[3].split()[0])
         return f"{m[1]} expects {EXPECTS.get(metavar, metavar)}, got {value!r}"
-    if m := re.search(r"invalid choice '(.*?)' for argument '(--[\w-]+)'\. Expected one of "
-                      r"\((.*?)\)", text):  # fmt: skip
+    if m := re.search(
+        r"invalid choice '(.*?)' for argument '(--[\w-]+)'\. Expected one of "
+        r"\((.*?)\)",
+        text,
+    ):
         choices = ", ".join(re.findall(r"'(.*?)'", m[3]))
         return f"{m[2]} expects one of ({choices}), got {m[1]!r}"
     if m := re.search(r"Missing value for argument '(--[\w-]+)'", text):
@@ -123,8 +129,7 @@ def parse_error(box: str) -> str:
 def given(argv: list[str]) -> dict[str, str]:
     """The fields ``argv`` sets, whatever the spelling (``--a-b``, ``--a_b``, ``--a-b=1``,
     ``--no-a``, ``--no_a``): ``{field: flag as typed}``."""
-    return {re.sub(r"^no_", "", a.split("=")[0][2:].replace("-", "_")): a.split("=")[0]
-            for a in argv if a.startswith("--")}  # fmt: skip
+    return {re.sub(r"^no_", "", a.split("=")[0][2:].replace("-", "_")): a.split("=")[0] for a in argv if a.startswith("--")}
 
 
 def flag(name: str) -> str:
@@ -171,16 +176,17 @@ def check_run(args) -> bool:
     goal_task = check_task(args.env_id, args.num_envs)
     check_positive(args, "total_timesteps", "num_steps", "torch_threads", "eval_episodes")
     if args.save_freq and not args.save_model:
-        fail(f"--save-freq {args.save_freq} would be ignored (it saves model.pt, which only "
-             "--save-model writes): add --save-model or leave it out")  # fmt: skip
+        fail(
+            f"--save-freq {args.save_freq} would be ignored (it saves model.pt, which only "
+            "--save-model writes): add --save-model or leave it out"
+        )
     for name in ("seed", "save_freq", "eval_freq", "eval_workers", "resume_freq"):
         if getattr(args, name) < 0:
             off = " (0 turns it off)" if name.endswith("freq") else ""
             fail(f"{flag(name)} must be non-negative{off}, got {getattr(args, name)}")
     batch_size = args.num_envs * args.num_steps
     if args.total_timesteps < batch_size:
-        fail(f"--total-timesteps {args.total_timesteps} is less than one batch "
-             f"(num_envs * num_steps = {batch_size})")  # fmt: skip
+        fail(f"--total-timesteps {args.total_timesteps} is less than one batch (num_envs * num_steps = {batch_size})")
     if args.capture_video:
         check_video(args.env_id)
     return goal_task
@@ -188,8 +194,22 @@ def check_run(args) -> bool:
 
 def check_minibatches(batch_size: int, num_minibatches: int) -> None:
     if batch_size % num_minibatches:
-        fail(f"batch {batch_size} (num_envs * num_steps) does not split into {num_minibatches} "
-             "minibatches; change --num-minibatches")  # fmt: skip
+        fail(
+            f"batch {batch_size} (num_envs * num_steps) does not split into {num_minibatches} "
+            "minibatches; change --num-minibatches"
+        )
+
+
+def check_ppo_kl(args) -> None:
+    """The flags of PPO-KL (eq. 4-5) that every script has: its update, its beta rule and GAE."""
+    check_positive(args, "num_minibatches", "update_epochs", "learning_rate", "kl_target")
+    check_positive(args, "vf_coef", "max_grad_norm")  # <= 0: V unlearnt, reversed or frozen
+    check_non_negative(args, "beta_init")
+    if args.kl_early_stop is not None:
+        check_positive(args, "kl_early_stop")
+    check_range(args, "gamma", 0.0, 1.0, open_low=True)
+    check_range(args, "gae_lambda", 0.0, 1.0)
+    check_minibatches(args.num_envs * args.num_steps, args.num_minibatches)
 
 
 def check_exp_name(name: str) -> None:
@@ -230,8 +250,10 @@ def check_memory(nbytes: float, what: str) -> None:
     """Fail if ``what`` (a flag and its value) would need more than the available memory: an
     allocation the machine cannot serve, refused before the run rather than a traceback in it."""
     if nbytes > (free := tasks.available_memory()):
-        fail(f"{what} needs about {nbytes / 2**30:,.1f} GiB of memory, and "
-             f"{free / 2**30:.1f} GiB are available; make it smaller")  # fmt: skip
+        fail(
+            f"{what} needs about {nbytes / 2**30:,.1f} GiB of memory, and "
+            f"{free / 2**30:.1f} GiB are available; make it smaller"
+        )
 
 
 def check_video(env_id: str) -> None:

@@ -58,9 +58,7 @@ def _layer_state(layer) -> dict:
         elif type(value).__name__ == "MjData":
             state[name] = {"mujoco": _physics(layer.model, value)}
         elif isinstance(value, bool | int | float | np.ndarray | np.generic | None) or (
-            isinstance(value, dict)
-            and value
-            and all(isinstance(v, np.ndarray) for v in value.values())
+            isinstance(value, dict) and value and all(isinstance(v, np.ndarray) for v in value.values())
         ):  # a dict of arrays: a recorded state (common/grasped_start.py)
             state[name] = copy.deepcopy(value)
     return state
@@ -79,12 +77,43 @@ def _restore_value(layer, name: str, value) -> None:
 
 # what a MuJoCo step leaves computed (positions, orientations, velocities, forces), which a task
 # may read before its next step (the Fetch tasks' mocap reads the gripper's body position)
-COMPUTED = ("xpos", "xquat", "xmat", "xipos", "ximat", "xanchor", "xaxis", "geom_xpos",
-            "geom_xmat", "site_xpos", "site_xmat", "cam_xpos", "cam_xmat", "light_xpos",
-            "light_xdir", "subtree_com", "cdof", "cinert", "cvel", "cdof_dot", "cacc", "cfrc_int",
-            "cfrc_ext", "sensordata", "actuator_length", "actuator_velocity", "actuator_force",
-            "ten_length", "ten_velocity", "qfrc_actuator", "qfrc_bias", "qfrc_passive",
-            "qfrc_constraint", "qacc", "energy")  # fmt: skip
+COMPUTED = (
+    "xpos",
+    "xquat",
+    "xmat",
+    "xipos",
+    "ximat",
+    "xanchor",
+    "xaxis",
+    "geom_xpos",
+    "geom_xmat",
+    "site_xpos",
+    "site_xmat",
+    "cam_xpos",
+    "cam_xmat",
+    "light_xpos",
+    "light_xdir",
+    "subtree_com",
+    "cdof",
+    "cinert",
+    "cvel",
+    "cdof_dot",
+    "cacc",
+    "cfrc_int",
+    "cfrc_ext",
+    "sensordata",
+    "actuator_length",
+    "actuator_velocity",
+    "actuator_force",
+    "ten_length",
+    "ten_velocity",
+    "qfrc_actuator",
+    "qfrc_bias",
+    "qfrc_passive",
+    "qfrc_constraint",
+    "qacc",
+    "energy",
+)
 
 
 def _physics(model, data) -> dict:
@@ -110,6 +139,4 @@ def _restore_physics(model, data, saved: dict) -> None:
         array.flat[:] = saved["computed"][start : start + array.size]
         start += array.size
     if start != len(saved["computed"]):
-        raise ValueError(
-            f"the saved physics holds {len(saved['computed'])} computed values, this task {start}"
-        )
+        raise ValueError(f"the saved physics holds {len(saved['computed'])} computed values, this task {start}")

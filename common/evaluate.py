@@ -74,14 +74,18 @@ def network(kinds: list[str] | None, weights: dict, name: str) -> torch.nn.Seque
     script's own. Raises ``checkpoint.CheckpointError`` for anything else."""
     prefix = f"{name}."
     saved = {k.removeprefix(prefix): v for k, v in weights.items() if k.startswith(prefix)}
-    bad = checkpoint.CheckpointError(f"the saved {name} (layers {kinds}) is not a network of "
-                                     f"{', '.join(LAYERS)} starting Linear")  # fmt: skip
+    bad = checkpoint.CheckpointError(
+        f"the saved {name} (layers {kinds}) is not a network of {', '.join(LAYERS)} starting Linear"
+    )
     if not kinds or not set(kinds) <= LAYERS.keys() or kinds[0] != "Linear":
         raise bad
     try:
-        layers = [LAYERS[kind]() if kind != "Linear"
-                  else torch.nn.utils.skip_init(torch.nn.Linear, *saved[f"{i}.weight"].shape[::-1])
-                  for i, kind in enumerate(kinds)]  # fmt: skip
+        layers = [
+            LAYERS[kind]()
+            if kind != "Linear"
+            else torch.nn.utils.skip_init(torch.nn.Linear, *saved[f"{i}.weight"].shape[::-1])
+            for i, kind in enumerate(kinds)
+        ]
         net = torch.nn.Sequential(*layers)
         net.load_state_dict(saved)  # strict: the weights the layers need, and no other
     except (KeyError, RuntimeError) as e:
@@ -97,8 +101,7 @@ class Policy:
         self.last_eval_seeds = content["last_eval_seeds"]
         saved = content["normalizer"]
         if content["normalizer_class"] == "InputNormalizer":
-            self.normalizer = InputNormalizer(len(saved["obs_rms"]["mean"]),
-                                              len(saved["goal_rms"]["mean"]))  # fmt: skip
+            self.normalizer = InputNormalizer(len(saved["obs_rms"]["mean"]), len(saved["goal_rms"]["mean"]))
         else:
             self.normalizer = RunningMeanStd(np.shape(saved["mean"]))
         self.normalizer.load_state_dict(saved)
@@ -151,8 +154,7 @@ class Policy:
         env = gym.make(self.env_id, **{"render_mode": "rgb_array"} if video_dir else {})
         if video_dir:
             follow_camera(env)
-            env = gym.wrappers.RecordVideo(env, video_dir, lambda e: e < video_episodes,
-                                           disable_logger=True)  # fmt: skip
+            env = gym.wrappers.RecordVideo(env, video_dir, lambda e: e < video_episodes, disable_logger=True)
         env = gym.wrappers.RecordEpisodeStatistics(env)
         returns, successes = [], []
         for seed in seeds:
@@ -195,17 +197,16 @@ def load_policy(path: str, env_id: str | None = None) -> Policy:
     if env_id is None:
         env_id = str(content["args"].get("env_id", ""))
         if ":" in env_id:
-            raise ValueError(f"this policy was trained on {env_id}; pass --env-id {env_id} "
-                             f"to import {env_id.rpartition(':')[0]}")  # fmt: skip
+            raise ValueError(
+                f"this policy was trained on {env_id}; pass --env-id {env_id} to import {env_id.rpartition(':')[0]}"
+            )
     tasks.register_goal_tasks()
     if why := tasks.task_refusal(env_id):
         raise ValueError(why)
     try:
         return Policy(content, env_id)
     except KeyError as e:  # a part the file should hold and does not
-        raise checkpoint.CheckpointError(
-            f"{path} lacks {e}: it is not a whole model.pt or resume.pt of these scripts"
-        ) from e
+        raise checkpoint.CheckpointError(f"{path} lacks {e}: it is not a whole model.pt or resume.pt of these scripts") from e
 
 
 def main(argv: list[str] | None = None) -> int:

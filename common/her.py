@@ -75,8 +75,10 @@ def check(args: HerArgs, env_id: str, goal_task: bool) -> str | None:
     if args.her_n_sampled_goal < 0:
         return f"--her-n-sampled-goal must be non-negative, got {args.her_n_sampled_goal}"
     if goal_task and args.gamma >= 1:  # sparse_return_range: -1 / (1 - gamma)
-        return (f"--gamma {args.gamma} on a goal task: its returns are bounded by 1 / (1 - gamma), "
-                "which needs gamma < 1 (e.g. 0.98)")  # fmt: skip
+        return (
+            f"--gamma {args.gamma} on a goal task: its returns are bounded by 1 / (1 - gamma), "
+            "which needs gamma < 1 (e.g. 0.98)"
+        )
     if not goal_task:
         print(f"{env_id} has no goals: hindsight relabelling (HER) is off", flush=True)
     if goal_task and (why := reward_refusal(env_id)):
@@ -132,8 +134,7 @@ class HerReplayBuffer(ReplayBuffer):
     ):
         if goal_selection_strategy not in GOAL_SELECTION_STRATEGIES:
             raise ValueError(
-                f"goal_selection_strategy must be one of {GOAL_SELECTION_STRATEGIES}, "
-                f"got {goal_selection_strategy!r}"
+                f"goal_selection_strategy must be one of {GOAL_SELECTION_STRATEGIES}, got {goal_selection_strategy!r}"
             )
         if n_sampled_goal < 0:
             raise ValueError(f"n_sampled_goal must be >= 0, got {n_sampled_goal}")
@@ -149,8 +150,7 @@ class HerReplayBuffer(ReplayBuffer):
         """As ``ReplayBuffer.add``, with ``obs`` and ``next_obs`` a goal task's Dicts
         (``observation``, ``achieved_goal``, ``desired_goal``): ``next_obs`` is the real next."""
         p = self.pos
-        super().add(obs["observation"], actions, rewards, next_obs["observation"], terminations,
-                    truncations)  # fmt: skip
+        super().add(obs["observation"], actions, rewards, next_obs["observation"], terminations, truncations)
         self.achieved_goal[p] = obs["achieved_goal"]
         self.next_achieved_goal[p] = next_obs["achieved_goal"]
         self.desired_goal[p] = obs["desired_goal"]
@@ -161,13 +161,15 @@ class HerReplayBuffer(ReplayBuffer):
         rng = rng or self.rng
         rows, envs = self._sample_rows(batch_size, rng)
         batch = {
-            "obs": self.obs[rows, envs], "actions": self.actions[rows, envs],
-            "rewards": self.rewards[rows, envs].copy(), "next_obs": self.next_obs[rows, envs],
+            "obs": self.obs[rows, envs],
+            "actions": self.actions[rows, envs],
+            "rewards": self.rewards[rows, envs].copy(),
+            "next_obs": self.next_obs[rows, envs],
             "terminations": self.terminations[rows, envs],
             "achieved_goal": self.achieved_goal[rows, envs],
             "next_achieved_goal": self.next_achieved_goal[rows, envs],
             "desired_goal": self.desired_goal[rows, envs].copy(),
-        }  # fmt: skip
+        }
         # HER (the paper's Figure 2): a share her_ratio of the transitions get a goal achieved
         relabel = rng.random(batch_size) < self.her_ratio  # later, and the reward it implies
         batch["relabelled"] = relabel
@@ -184,9 +186,7 @@ class HerReplayBuffer(ReplayBuffer):
             new_goal = self.next_achieved_goal[(start + j) % self.rows, e]  # g' = ag_{j+1}
             batch["desired_goal"][relabel] = new_goal
             # r' from ag_{t+1}, the achieved goal of the state the transition reached
-            batch["rewards"][relabel] = self.compute_reward(
-                batch["next_achieved_goal"][relabel], new_goal
-            )
+            batch["rewards"][relabel] = self.compute_reward(batch["next_achieved_goal"][relabel], new_goal)
         return batch
 
 
@@ -198,8 +198,10 @@ def hindsight_refusal(env_id: str) -> str | None:
     goal = np.zeros(env.observation_space["desired_goal"].shape)
     if hasattr(env, "compute_terminated"):
         if any(np.any(env.compute_terminated(g, goal, {})) for g in (goal, goal + 1e3)):
-            return (f"{env_id} terminates depending on the goal; HER would keep the stored "
-                    "termination of a relabelled transition: use --no-her")  # fmt: skip
+            return (
+                f"{env_id} terminates depending on the goal; HER would keep the stored "
+                "termination of a relabelled transition: use --no-her"
+            )
     return None
 
 

@@ -86,11 +86,7 @@ class InputNormalizer:
 
     def __call__(self, raw) -> torch.Tensor:
         """The input of a raw environment observation (a Dict on goal tasks)."""
-        return (
-            self.inputs(raw["observation"], raw["desired_goal"])
-            if self.goal_task
-            else self.inputs(raw)
-        )
+        return self.inputs(raw["observation"], raw["desired_goal"]) if self.goal_task else self.inputs(raw)
 
     def state_dict(self) -> dict:
         return {"obs_rms": self.obs_rms.state_dict(), "goal_rms": self.goal_rms.state_dict()}

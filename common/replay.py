@@ -48,14 +48,9 @@ class ReplayBuffer:
         """
         p = self.pos
         for e in np.flatnonzero(self.ep_length[p] > 0):  # overwriting a stored episode: drop it
-            self.ep_length[
-                (self.ep_start[p, e] + np.arange(self.ep_length[p, e])) % self.rows, e
-            ] = 0
+            self.ep_length[(self.ep_start[p, e] + np.arange(self.ep_length[p, e])) % self.rows, e] = 0
         if np.any(self.current_length >= self.rows):
-            raise ValueError(
-                f"an episode is longer than the buffer's {self.rows} rows per env; "
-                "enlarge buffer_size"
-            )
+            raise ValueError(f"an episode is longer than the buffer's {self.rows} rows per env; enlarge buffer_size")
         self.obs[p], self.next_obs[p], self.actions[p] = obs, next_obs, actions
         self.rewards[p], self.terminations[p] = rewards, terminations
         self.ep_start[p], self.ep_length[p] = self.current_start, 0
@@ -85,9 +80,13 @@ class ReplayBuffer:
             for k, v in vars(self).items()  # the (rows, envs) arrays
             if isinstance(v, np.ndarray) and v.shape[:2] == (self.rows, self.num_envs)
         }
-        return arrays | {"current_start": self.current_start.copy(),
-                         "current_length": self.current_length.copy(), "pos": self.pos,
-                         "filled": self.filled, "rng": self.rng.bit_generator.state}  # fmt: skip
+        return arrays | {
+            "current_start": self.current_start.copy(),
+            "current_length": self.current_length.copy(),
+            "pos": self.pos,
+            "filled": self.filled,
+            "rng": self.rng.bit_generator.state,
+        }
 
     def load_state_dict(self, state: dict) -> None:
         for key, value in state.items():
@@ -98,8 +97,7 @@ class ReplayBuffer:
             elif isinstance(value, np.ndarray) and getattr(self, key).shape[1:] == value.shape[1:]:
                 getattr(self, key)[: len(value)] = value
             elif isinstance(value, np.ndarray):
-                raise ValueError(f"replay state {key!r} has shape {value.shape}, this buffer "
-                                 f"{getattr(self, key).shape}")  # fmt: skip
+                raise ValueError(f"replay state {key!r} has shape {value.shape}, this buffer {getattr(self, key).shape}")
             else:
                 setattr(self, key, value)
         self._sampleable = None
@@ -125,14 +123,15 @@ class ReplayBuffer:
         instead of the buffer's own (a measurement that must not move the training's stream)."""
         rows, envs = self._sample_rows(batch_size, rng or self.rng)
         return {
-            "obs": self.obs[rows, envs], "actions": self.actions[rows, envs],
-            "rewards": self.rewards[rows, envs].copy(), "next_obs": self.next_obs[rows, envs],
+            "obs": self.obs[rows, envs],
+            "actions": self.actions[rows, envs],
+            "rewards": self.rewards[rows, envs].copy(),
+            "next_obs": self.next_obs[rows, envs],
             "terminations": self.terminations[rows, envs],
-        }  # fmt: skip
+        }
 
 
-def sample_replay(rb: ReplayBuffer, norm, reward_scale: float, batch_size: int,
-                  count: int = 1, rng=None) -> list[dict]:  # fmt: skip
+def sample_replay(rb: ReplayBuffer, norm, reward_scale: float, batch_size: int, count: int = 1, rng=None) -> list[dict]:
     """``count`` replay batches of tensors, inputs normalised, rewards scaled: one draw of
     ``count * batch_size`` transitions, split (``rng``: a generator other than the buffer's)."""
     data = rb.sample(batch_size * count, rng)
@@ -154,8 +153,10 @@ def buffer_refusal(buffer_size: int, num_envs: int, env_id: str) -> str | None:
     arrays (``HerReplayBuffer``'s on a goal task) must fit in the available memory."""
     rows, longest = buffer_size // num_envs, gym.spec(task_name(env_id)).max_episode_steps
     if longest and rows < longest:
-        return (f"--buffer-size {buffer_size} keeps {rows} steps per env, less than one "
-                f"{env_id} episode ({longest} steps); enlarge it")  # fmt: skip
+        return (
+            f"--buffer-size {buffer_size} keeps {rows} steps per env, less than one "
+            f"{env_id} episode ({longest} steps); enlarge it"
+        )
     env = gym.make(env_id)
     space, act_dim = env.observation_space, gym.spaces.flatdim(env.action_space)
     env.close()
@@ -165,6 +166,8 @@ def buffer_refusal(buffer_size: int, num_envs: int, env_id: str) -> str | None:
     # float32 obs, next_obs, actions, reward, termination, goals; int64 episode start and length
     need = rows * num_envs * (4 * (2 * obs_dim + act_dim + 2 + 3 * goal_dim) + 16)
     if need > (free := available_memory()):
-        return (f"--buffer-size {buffer_size} needs about {need / 2**30:,.1f} GiB of memory, and "
-                f"{free / 2**30:.1f} GiB are available; make it smaller")  # fmt: skip
+        return (
+            f"--buffer-size {buffer_size} needs about {need / 2**30:,.1f} GiB of memory, and "
+            f"{free / 2**30:.1f} GiB are available; make it smaller"
+        )
     return None

@@ -146,8 +146,11 @@ class Run:
         threading.excepthook = quiet_writer_thread  # until __exit__
         batch, steps = args.num_envs * args.num_steps, args.total_timesteps
         if steps % batch:  # training runs in whole batches
-            print(f"--total-timesteps {steps:,}: {steps // batch * batch:,} steps, whole batches "
-                  f"of {batch:,} (num_envs * num_steps)", flush=True)  # fmt: skip
+            print(
+                f"--total-timesteps {steps:,}: {steps // batch * batch:,} steps, whole batches "
+                f"of {batch:,} (num_envs * num_steps)",
+                flush=True,
+            )
         # seeding: one independent stream per use (common/seeding.py)
         self.streams = seeding.streams(args.seed, args.num_envs)
         random.seed(self.streams.global_seed)
@@ -167,8 +170,11 @@ class Run:
         """Register what is saved; on ``--resume`` restore it all, the environments too: they go
         on mid-episode from ``resumed_obs``, the raw observation they had reached."""
         self.envs, self.model = envs, model
-        streams = dict(eval_rng=self.streams.eval_rng, diagnostics_rng=self.diagnostics_rng,
-                       diagnostics_generator=self.diagnostics_generator)  # fmt: skip
+        streams = dict(
+            eval_rng=self.streams.eval_rng,
+            diagnostics_rng=self.diagnostics_rng,
+            diagnostics_generator=self.diagnostics_generator,
+        )
         self.parts = model | training | streams
         self.envs_state = EnvsState(envs)
         if self.resumed:
@@ -187,8 +193,9 @@ class Run:
                 for part in self.parts.values():
                     if hasattr(part, "end_episodes"):
                         part.end_episodes()
-                self.resumed_obs, _ = envs.reset(seed=seeding.resume_env_seeds(
-                    self.args.seed, self.args.num_envs, r["global_step"]))  # fmt: skip
+                self.resumed_obs, _ = envs.reset(
+                    seed=seeding.resume_env_seeds(self.args.seed, self.args.num_envs, r["global_step"])
+                )
             checkpoint.set_rng_states(r["rng"])
             self.scalars = r["scalars"]
             self.global_step, self.train_time = r["global_step"], r["train_time"]
@@ -203,11 +210,15 @@ class Run:
             self.writer = writer_for(self.dir)
             table = "\n".join(f"|{key}|{value}|" for key, value in vars(self.args).items())
             self.writer.add_text("hyperparameters", f"|param|value|\n|-|-|\n{table}")
-        self.evaluator = BackgroundEvaluator(self.args.eval_workers,
-                                             lambda line: self.print(line, sys.stderr))  # fmt: skip
-        self.progress = tqdm(total=self.args.total_timesteps, initial=self.global_step,
-                             unit=" steps", disable=not sys.stdout.isatty(), dynamic_ncols=True,
-                             bar_format=BAR)  # fmt: skip
+        self.evaluator = BackgroundEvaluator(self.args.eval_workers, lambda line: self.print(line, sys.stderr))
+        self.progress = tqdm(
+            total=self.args.total_timesteps,
+            initial=self.global_step,
+            unit=" steps",
+            disable=not sys.stdout.isatty(),
+            dynamic_ncols=True,
+            bar_format=BAR,
+        )
 
     def restored(self, name: str, default):
         """The scalar ``name`` (an ``end_iteration`` keyword) as the resume point saved it
@@ -262,15 +273,11 @@ class Run:
             self.last_eval, self.eval_seeds = step, self.streams.eval_seeds(args.eval_episodes)
             video_dir = self.video_dir(step) if args.capture_video else None
             snapshot = checkpoint.state(self.model)
-            self.evaluator.submit(
-                step, evaluate_snapshot, snapshot, args.env_id, self.eval_seeds, video_dir
-            )
+            self.evaluator.submit(step, evaluate_snapshot, snapshot, args.env_id, self.eval_seeds, video_dir)
         for eval_step, (returns, success) in self.evaluator.finished(wait=last or resume_due):
             self.eval_returns, self.eval_success = returns, success
             self.writer.add_scalar("eval/episodic_return", returns.mean(), eval_step)
-            message = (
-                f"evaluation of step {eval_step:,} (mean policy): eval_return={returns.mean():.1f}"
-            )
+            message = f"evaluation of step {eval_step:,} (mean policy): eval_return={returns.mean():.1f}"
             self.latest_eval = f"eval return {returns.mean():.1f} @ {eval_step:,}"
             if len(success):
                 self.writer.add_scalar("eval/success_rate", success.mean(), eval_step)
@@ -283,12 +290,20 @@ class Run:
             self.save()
         if resume_due:
             checkpoint.save_resume_state(
-                self.dir, args, **self.parts, envs=self.envs_state, rng=checkpoint.rng_states(),
+                self.dir,
+                args,
+                **self.parts,
+                envs=self.envs_state,
+                rng=checkpoint.rng_states(),
                 scalars=self.scalars,
-                iteration=self.iteration, global_step=step, train_time=self.train_time,
-                last_eval=self.last_eval, last_save=self.last_save,
-                recent_success=self.recent_success, eval_seeds=self.eval_seeds,
-            )  # fmt: skip
+                iteration=self.iteration,
+                global_step=step,
+                train_time=self.train_time,
+                last_eval=self.last_eval,
+                last_save=self.last_save,
+                recent_success=self.recent_success,
+                eval_seeds=self.eval_seeds,
+            )
             self.last_resume = step  # once written
         live = f"{sps:,} steps/s | {self.latest} | {self.latest_eval}"  # training time's rate
         self.progress.update(step - self.progress.n)

@@ -25,9 +25,12 @@ def register_goal_tasks() -> None:
     except Exception as e:
         if "MUJOCO_GL" not in os.environ:
             raise
-        print(f"error: MUJOCO_GL={os.environ['MUJOCO_GL']}: MuJoCo cannot load that renderer "
-              f"({type(e).__name__}); install it (osmesa: apt install libosmesa6) or unset "
-              "MUJOCO_GL, which only --capture-video needs", file=sys.stderr)  # fmt: skip
+        print(
+            f"error: MUJOCO_GL={os.environ['MUJOCO_GL']}: MuJoCo cannot load that renderer "
+            f"({type(e).__name__}); install it (osmesa: apt install libosmesa6) or unset "
+            "MUJOCO_GL, which only --capture-video needs",
+            file=sys.stderr,
+        )
         sys.exit(2)
     with contextlib.redirect_stderr(io.StringIO()):
         import gymnasium_robotics
@@ -96,11 +99,9 @@ def task_refusal(env_id: str, num_envs: int = 1) -> str | None:
     except BaseException as e:  # a module that raises, even SystemExit: not ours to end on
         if isinstance(e, KeyboardInterrupt):
             raise
-        return (f"--env-id {env_id}: cannot import {env_id.rpartition(':')[0]} "
-                f"({type(e).__name__}: {e})")  # fmt: skip
+        return f"--env-id {env_id}: cannot import {env_id.rpartition(':')[0]} ({type(e).__name__}: {e})"
     if name not in gym.registry:
-        close = current_version(name) or next(iter(difflib.get_close_matches(
-            name, gym.registry, n=1)), None)  # fmt: skip
+        close = current_version(name) or next(iter(difflib.get_close_matches(name, gym.registry, n=1)), None)
         close = close and env_id.removesuffix(name) + close  # with its module, if it has one
         hint = f"did you mean {close}?" if close else "use a registered id such as Hopper-v5"
         return f"unknown --env-id {env_id!r}; {hint}"
@@ -110,8 +111,7 @@ def task_refusal(env_id: str, num_envs: int = 1) -> str | None:
     except gym.error.DependencyNotInstalled as e:
         if "mujoco_py" in str(e):
             current = current_version(name) or "a v4 or v5 MuJoCo task such as Hopper-v5"
-            return (f"{env_id} needs the deprecated mujoco-py, which this project does not "
-                    f"support; use {current}")  # fmt: skip
+            return f"{env_id} needs the deprecated mujoco-py, which this project does not support; use {current}"
         return f"{env_id} needs a dependency that is not installed: {' '.join(map(str, e.args))}"
     except Exception as e:
         return f"--env-id {env_id}: making the task failed ({type(e).__name__}: {e})"
@@ -124,24 +124,28 @@ def task_refusal(env_id: str, num_envs: int = 1) -> str | None:
 def _env_refusal(env: gym.Env, env_id: str, num_envs: int) -> str | None:
     """``task_refusal``'s checks of a made environment."""
     if env.spec.max_episode_steps is None:  # the replay and the evaluation wait for ends
-        return (f"{env_id} has no time limit: register it with max_episode_steps, so that its "
-                "episodes end")  # fmt: skip
+        return f"{env_id} has no time limit: register it with max_episode_steps, so that its episodes end"
     action_space, observation_space = env.action_space, env.observation_space
     if (model := getattr(env.unwrapped, "model", None)) is not None:  # a MuJoCo task
         need = num_envs * (model.nbuffer + env.unwrapped.data.nbuffer + env.unwrapped.data.narena)
         if need > (free := available_memory()):
-            return (f"--num-envs {num_envs}: {num_envs} copies of {env_id}'s simulator need "
-                    f"about {need / 2**30:.1f} GiB, and {free / 2**30:.1f} GiB are "
-                    "free")  # fmt: skip
+            return (
+                f"--num-envs {num_envs}: {num_envs} copies of {env_id}'s simulator need "
+                f"about {need / 2**30:.1f} GiB, and {free / 2**30:.1f} GiB are "
+                "free"
+            )
     if not isinstance(action_space, gym.spaces.Box):
-        return (f"{env_id} has {type(action_space).__name__} actions; these scripts need "
-                "continuous (Box) actions, e.g. Hopper-v5, FetchReach-v4")  # fmt: skip
+        return (
+            f"{env_id} has {type(action_space).__name__} actions; these scripts need "
+            "continuous (Box) actions, e.g. Hopper-v5, FetchReach-v4"
+        )
     for what, shape in (("actions", action_space.shape), ("observations", observation_space.shape)):
         if shape is not None and len(shape) != 1:  # the networks and the Gaussian take vectors
             return f"{env_id}'s {what} have shape {shape}; these scripts need vectors (1-D Boxes)"
     if not (isinstance(observation_space, gym.spaces.Box) or goal_space(observation_space)):
-        return (f"{env_id}'s observations are not supported: a vector (Box) or a goal Dict with "
-                f"vector {', '.join(GOAL_KEYS)} are")  # fmt: skip
+        return (
+            f"{env_id}'s observations are not supported: a vector (Box) or a goal Dict with vector {', '.join(GOAL_KEYS)} are"
+        )
     with warnings.catch_warnings(action="ignore"):
         obs, _ = env.reset()  # unseeded: no run's seed is spent on a check
     boxes = observation_space.spaces if goal_space(observation_space) else {"": observation_space}
@@ -149,8 +153,10 @@ def _env_refusal(env: gym.Env, env_id: str, num_envs: int) -> str | None:
         got = np.shape(obs[key] if key else obs)
         if key in GOAL_KEYS + ("",) and got != box.shape:
             what = f"observation {key!r}" if key else "observation"
-            return (f"{env_id}'s reset returns an {what} of shape {got}, its observation space "
-                    f"declares {box.shape}: make them agree")  # fmt: skip
+            return (
+                f"{env_id}'s reset returns an {what} of shape {got}, its observation space "
+                f"declares {box.shape}: make them agree"
+            )
     return None
 
 
@@ -181,6 +187,8 @@ def video_refusal(env_id: str) -> str | None:
     except ImportError:
         return "--capture-video needs moviepy: pip install moviepy"
     except Exception as e:
-        return (f"--capture-video: rendering {env_id} failed ({type(e).__name__}); MuJoCo needs "
-                "an OpenGL backend, e.g. apt install libosmesa6 and MUJOCO_GL=osmesa")  # fmt: skip
+        return (
+            f"--capture-video: rendering {env_id} failed ({type(e).__name__}); MuJoCo needs "
+            "an OpenGL backend, e.g. apt install libosmesa6 and MUJOCO_GL=osmesa"
+        )
     return None

@@ -28,10 +28,7 @@ def mathjax_root() -> Path:
     except ModuleNotFoundError:
         root = None
     if root is None or not (root / "es5" / BUNDLE).is_file():
-        raise PluginError(
-            "MathJax not found: pip install -r requirements-docs.txt "
-            "(django-static-mathjax ships it)"
-        )
+        raise PluginError("MathJax not found: pip install -r requirements-docs.txt (django-static-mathjax ships it)")
     return root
 
 

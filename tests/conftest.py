@@ -19,9 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def run_script(
-    script: str, log_dir: Path, *flags: str, timeout: int = 600
-) -> subprocess.CompletedProcess:
+def run_script(script: str, log_dir: Path, *flags: str, timeout: int = 600) -> subprocess.CompletedProcess:
     """``python {script} --log-dir {log_dir} {flags}`` from the project root, output captured."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}
     cmd = [sys.executable, str(ROOT / script), "--log-dir", str(log_dir), *flags]

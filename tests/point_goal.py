@@ -23,8 +23,7 @@ class PointGoal(gym.Env):
         return -(distance > self.distance_threshold).astype(np.float32)
 
     def _obs(self):
-        return {"observation": self.point.copy(), "achieved_goal": self.point.copy(),
-                "desired_goal": self.goal.copy()}  # fmt: skip
+        return {"observation": self.point.copy(), "achieved_goal": self.point.copy(), "desired_goal": self.goal.copy()}
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)

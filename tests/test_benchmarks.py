@@ -35,24 +35,13 @@ def test_quick_suite_runs_resumes_and_reports_what_the_event_files_hold(tmp_path
     # the Hopper PPO-KL row's final return: the mean of the event file's last 100 training episodes
     row = next(line for line in text.splitlines() if line.startswith("| Hopper-v5 | PPO-KL |"))
     final = float(re.split(r"\s*\|\s*", row)[4].split("±")[0])
-    (event_dir,) = [
-        p
-        for p in (tmp_path / "runs" / "quick" / "ppo_kl__Hopper-v5__seed1").iterdir()
-        if p.is_dir()
-    ]
+    (event_dir,) = [p for p in (tmp_path / "runs" / "quick" / "ppo_kl__Hopper-v5__seed1").iterdir() if p.is_dir()]
     returns = [v for _, v in scalars(event_dir)["charts/episodic_return"]]
     assert abs(final - np.mean(returns[-100:])) <= 0.5
     # the FetchReach IPG+HER row's final eval success is the last eval/success_rate
     row = next(line for line in text.splitlines() if line.startswith("| FetchReach-v4 | IPG+HER |"))
-    (event_dir,) = [
-        p
-        for p in (tmp_path / "runs" / "quick" / "ipg_her__FetchReach-v4__seed1").iterdir()
-        if p.is_dir()
-    ]
-    assert (
-        abs(float(re.split(r"\s*\|\s*", row)[7]) - scalars(event_dir)["eval/success_rate"][-1][1])
-        <= 0.005
-    )
+    (event_dir,) = [p for p in (tmp_path / "runs" / "quick" / "ipg_her__FetchReach-v4__seed1").iterdir() if p.is_dir()]
+    assert abs(float(re.split(r"\s*\|\s*", row)[7]) - scalars(event_dir)["eval/success_rate"][-1][1]) <= 0.005
     # the export alone redraws the same table
     assert report.main(report.Args(suite="quick", from_export=True, **folders)) == 0
     assert (results / "results.md").read_text() == text
@@ -112,12 +101,14 @@ def test_the_goals_suite_runs_the_recipes_defaults_then_with_no_flag_but_the_bud
     runs = suites.suite_runs("goals")
     flag = re.compile(r"(--\S+) ([^-\s]\S*(?: [^-\s]\S*)*)")  # a flag and its values
     then = (suites.SUMMED, ("--gamma", "0.98"))
-    budgets = {(r.name, r.env_id, r.seed): dict(flag.findall(" ".join(without(r.flags, *then))))
-               for r in runs if r.script == "ipg_her_recipe.py"}  # fmt: skip
+    budgets = {
+        (r.name, r.env_id, r.seed): dict(flag.findall(" ".join(without(r.flags, *then))))
+        for r in runs
+        if r.script == "ipg_her_recipe.py"
+    }
     assert len(budgets) == len(runs) == 18
     assert {seed for *_, seed in budgets} == {301, 302, 303}
-    steps = {"HandReach-v3": "300000", "HandManipulateBlockRotateZ-v1": "1000000",
-             "PointMaze_Medium-v3": "300000"}  # fmt: skip
+    steps = {"HandReach-v3": "300000", "HandManipulateBlockRotateZ-v1": "1000000", "PointMaze_Medium-v3": "300000"}
     named = {
         ("ipg_her_300k_gamma0995", "PointMaze_Medium-v3"): {"--gamma": "0.995"},
         ("ipg_her_300k_std03", "HandReach-v3"): {"--target-std": "0.3"},
@@ -127,8 +118,12 @@ def test_the_goals_suite_runs_the_recipes_defaults_then_with_no_flag_but_the_bud
         extra = named.get((name, env_id), {})
         assert extra or name in ("ipg_her_300k", "ipg_her_1000k")
         assert flags == {
-            "--total-timesteps": steps[env_id], "--eval-freq": "10000", "--eval-episodes": "50",
-            "--resume-freq": "50000", **extra}  # fmt: skip
+            "--total-timesteps": steps[env_id],
+            "--eval-freq": "10000",
+            "--eval-episodes": "50",
+            "--resume-freq": "50000",
+            **extra,
+        }
 
 
 def test_the_one_recipe_suite_runs_every_goal_task_with_no_flag_but_the_budget():
@@ -136,12 +131,15 @@ def test_the_one_recipe_suite_runs_every_goal_task_with_no_flag_but_the_budget()
     goal task at its budget, evaluated every 10,000 steps on 50 episodes, resumable, no other
     flag."""
     runs = suites.suite_runs("one_recipe")
-    budgets = {"FetchPush-v4": 300_000, "FetchPickAndPlace-v4": 500_000, "FetchSlide-v4": 10**6,
-               "HandReach-v3": 300_000, "PointMaze_Medium-v3": 300_000,
-               "HandManipulateBlockRotateZ-v1": 10**6}  # fmt: skip
-    assert sorted((r.env_id, r.seed) for r in runs) == sorted(
-        (env_id, seed) for env_id in budgets for seed in (401, 402, 403)
-    )
+    budgets = {
+        "FetchPush-v4": 300_000,
+        "FetchPickAndPlace-v4": 500_000,
+        "FetchSlide-v4": 10**6,
+        "HandReach-v3": 300_000,
+        "PointMaze_Medium-v3": 300_000,
+        "HandManipulateBlockRotateZ-v1": 10**6,
+    }
+    assert sorted((r.env_id, r.seed) for r in runs) == sorted((env_id, seed) for env_id in budgets for seed in (401, 402, 403))
     for r in runs:
         assert r.script == "ipg_her_recipe.py" and r.name == f"ipg_her_{budgets[r.env_id] // 1000}k"
         assert r.flags == ("--total-timesteps", str(budgets[r.env_id]), *suites.FETCH_EVERY)
@@ -154,22 +152,17 @@ def test_the_fetch_and_goals_suites_still_run_what_ran():
     page still run what they report."""
     import ipg_her_recipe as recipe
 
-    recipe_then = dict(hidden=256, target_std=1.0, normalization="paper", action_l2=1.0,
-                       twin_critic=True)  # fmt: skip
+    recipe_then = dict(hidden=256, target_std=1.0, normalization="paper", action_l2=1.0, twin_critic=True)
     rows_then = {
-        "FetchPickAndPlace-v4": recipe_then | dict(grasped_start=0.5,
-                                                   target_std=(1.0, 1.0, 1.0, 0.3)),
-        "FetchSlide-v4": recipe_then | dict(target_std=(0.3, 0.3, 0.3, 1.0), action_l2=0.0,
-                                            bounds_loss=1.0, anneal_lr=True),
-    }  # fmt: skip
+        "FetchPickAndPlace-v4": recipe_then | dict(grasped_start=0.5, target_std=(1.0, 1.0, 1.0, 0.3)),
+        "FetchSlide-v4": recipe_then | dict(target_std=(0.3, 0.3, 0.3, 1.0), action_l2=0.0, bounds_loss=1.0, anneal_lr=True),
+    }
     runs = suites.suite_runs("fetch") + suites.suite_runs("goals")
     assert len(runs) == 67
     for r in runs:
         argv = ["--env-id", r.env_id, *r.flags]
-        now = cli.parse_args(recipe.Args, argv, task_defaults=recipe.task_defaults,
-                             ignored=recipe.ignored)  # fmt: skip
-        then = cli.parse_args(recipe.Args, argv, ignored=recipe.ignored,
-                              task_defaults=lambda e: rows_then.get(e, recipe_then))  # fmt: skip
+        now = cli.parse_args(recipe.Args, argv, task_defaults=recipe.task_defaults, ignored=recipe.ignored)
+        then = cli.parse_args(recipe.Args, argv, ignored=recipe.ignored, task_defaults=lambda e: rows_then.get(e, recipe_then))
         assert vars(now) == vars(then), (r.name, r.env_id)
 
 
@@ -187,17 +180,16 @@ def test_the_fetch_suite_runs_the_recipe_with_no_flag_but_the_budget_and_evaluat
     budgets = {}
     for r in runs:
         assert r.script == "ipg_her_recipe.py"
-        then = {"FetchPush-v4": (suites.SUMMED,), "FetchPickAndPlace-v4": (suites.PICK_ROW,),
-                "FetchSlide-v4": (suites.SLIDE_ROW, ("--anneal-lr",))}[r.env_id]  # fmt: skip
-        r_flags = (
-            r.flags if "_grasped" in r.name or "_nograsp" in r.name else without(r.flags, *then)
-        )
+        then = {
+            "FetchPush-v4": (suites.SUMMED,),
+            "FetchPickAndPlace-v4": (suites.PICK_ROW,),
+            "FetchSlide-v4": (suites.SLIDE_ROW, ("--anneal-lr",)),
+        }[r.env_id]
+        r_flags = r.flags if "_grasped" in r.name or "_nograsp" in r.name else without(r.flags, *then)
         critics = "1" if "--no-twin-critic" in r_flags else "2"
         assert (critics == "1") == ("_1critic" in r.name)
         constlr = "--no-anneal-lr" in r_flags  # Slide's earlier defaults, and Push's on Slide
-        assert constlr == (
-            r.env_id == "FetchSlide-v4" and ("_constlr" in r.name or "_sigma1" in r.name)
-        )
+        assert constlr == (r.env_id == "FetchSlide-v4" and ("_constlr" in r.name or "_sigma1" in r.name))
         pairs = [f for f in r_flags if f not in ("--no-twin-critic", "--no-anneal-lr")]
         flags = dict(zip(pairs[::2], pairs[1::2], strict=True))
         nu = flags.pop("--nu", "1.0")  # the mixing runs: nu alone differs
@@ -207,8 +199,7 @@ def test_the_fetch_suite_runs_the_recipe_with_no_flag_but_the_budget_and_evaluat
             assert (flags.pop("--action-l2"), flags.pop("--bounds-loss")) == ("1.0", "0.0")
             critics += "_sigma1"
         elif std == "1.0":
-            assert r.env_id == "FetchPickAndPlace-v4" and ("_grasped" in r.name) != (
-                "--grasped-start" in flags)  # fmt: skip
+            assert r.env_id == "FetchPickAndPlace-v4" and ("_grasped" in r.name) != ("--grasped-start" in flags)
             critics += "_grasped" if "_grasped" in r.name else ""
         if flags.pop("--grasped-start", None) == "0":
             assert "_nograsp" in r.name and r.env_id == "FetchPickAndPlace-v4"
@@ -227,17 +218,18 @@ def test_the_fetch_suite_runs_the_recipe_with_no_flag_but_the_budget_and_evaluat
         budgets.setdefault((r.env_id, flags["--total-timesteps"], nu, critics), []).append(r.seed)
     for critics in ("1", "2"):
         assert budgets.pop(("FetchPush-v4", "300000", "1.0", critics)) == [4, 5, 6, 7, 8]
-        assert budgets.pop(("FetchPickAndPlace-v4", "500000", "1.0", f"{critics}_nograsp")) == [
-            1, 2, 3]  # fmt: skip
+        assert budgets.pop(("FetchPickAndPlace-v4", "500000", "1.0", f"{critics}_nograsp")) == [1, 2, 3]
         for nu in ("0.5", "0.8"):
             assert budgets.pop(("FetchPush-v4", "200000", nu, critics)) == [4, 5, 6]
     for nu in ("0.5", "0.8"):
         assert budgets.pop(("FetchPush-v4", "200000", nu, "eq10")) == [4, 5, 6]
-    assert budgets == {("FetchSlide-v4", "1000000", "1.0", "2"): [7, 8, 9],
-                       ("FetchSlide-v4", "1000000", "1.0", "2_constlr"): [4, 5, 6],
-                       ("FetchSlide-v4", "1000000", "1.0", "2_sigma1"): [1, 2, 3],
-                       ("FetchPickAndPlace-v4", "500000", "1.0", "2_grasped"): [4, 5, 6],
-                       ("FetchPickAndPlace-v4", "500000", "1.0", "2"): [4, 5, 6]}  # fmt: skip
+    assert budgets == {
+        ("FetchSlide-v4", "1000000", "1.0", "2"): [7, 8, 9],
+        ("FetchSlide-v4", "1000000", "1.0", "2_constlr"): [4, 5, 6],
+        ("FetchSlide-v4", "1000000", "1.0", "2_sigma1"): [1, 2, 3],
+        ("FetchPickAndPlace-v4", "500000", "1.0", "2_grasped"): [4, 5, 6],
+        ("FetchPickAndPlace-v4", "500000", "1.0", "2"): [4, 5, 6],
+    }
 
 
 def test_the_hopper_suite_runs_both_ends_on_fresh_seeds_and_nu_1_to_1m_on_a_seed_of_its_own():
@@ -250,13 +242,15 @@ def test_the_hopper_suite_runs_both_ends_on_fresh_seeds_and_nu_1_to_1m_on_a_seed
     seeds = {}
     for r in suites.suite_runs("hopper"):
         seeds.setdefault(r.name, []).append(r.seed)
-    assert seeds == {"ppo_kl_300k": [4, 5, 6, *range(8, 20)],
-                     "ipg_td3_nu1.0_300k": [4, 5, 6, *range(14, 20)],
-                     "ipg_td3_nu0.5_300k": [4, 5, 6, 17, 18, 19],
-                     "ipg_td3_bounds_nu1.0_300k": [4, 5, 6],
-                     "ipg_td3_narrow_nu1.0_300k": [8, 9, 10],
-                     "ipg_td3_paper_nu1.0_300k": [11, 12, 13],
-                     "ipg_td3_nu1.0_1M": [7]}  # fmt: skip
+    assert seeds == {
+        "ppo_kl_300k": [4, 5, 6, *range(8, 20)],
+        "ipg_td3_nu1.0_300k": [4, 5, 6, *range(14, 20)],
+        "ipg_td3_nu0.5_300k": [4, 5, 6, 17, 18, 19],
+        "ipg_td3_bounds_nu1.0_300k": [4, 5, 6],
+        "ipg_td3_narrow_nu1.0_300k": [8, 9, 10],
+        "ipg_td3_paper_nu1.0_300k": [11, 12, 13],
+        "ipg_td3_nu1.0_1M": [7],
+    }
     flags = {r.name: list(r.flags) for r in suites.suite_runs("hopper")}
     short, long = flags["ipg_td3_nu1.0_300k"], flags["ipg_td3_nu1.0_1M"]
     assert flags["ipg_td3_bounds_nu1.0_300k"] == [*short, "--bounds-loss", "1.0"]
@@ -283,8 +277,7 @@ def test_every_suite_command_passes_its_scripts_checks(monkeypatch):
     import qprop_ppo
     from common import cli, tasks
 
-    scripts = {"ppo_kl.py": ppo_kl, "qprop_ppo.py": qprop_ppo, "ipg_her.py": ipg_her,
-               "ipg_her_recipe.py": ipg_her_recipe}  # fmt: skip
+    scripts = {"ppo_kl.py": ppo_kl, "qprop_ppo.py": qprop_ppo, "ipg_her.py": ipg_her, "ipg_her_recipe.py": ipg_her_recipe}
     monkeypatch.setattr(tasks.gym, "make", functools.cache(tasks.gym.make))  # spaces only: one each
     names = run.Args.__annotations__["suite"].__args__
     assert sorted(names) == sorted(suites.SUITES)
@@ -322,8 +315,7 @@ def test_every_committed_export_redraws_its_results_md_and_its_figures(tmp_path)
         )
         results.mkdir(parents=True)
         shutil.copy(export, results)
-        args = report.Args(suite=suite, results_dir=str(results), figures_dir=str(figures),
-                           from_export=True)  # fmt: skip
+        args = report.Args(suite=suite, results_dir=str(results), figures_dir=str(figures), from_export=True)
         assert report.main(args) == 0, name
         assert (results / "results.md").read_text() == committed, name
         drawn = sorted(p.name for p in figures.iterdir())
@@ -340,9 +332,12 @@ def test_benchmarks_and_tests_name_no_path_outside_the_repository():
 
     files = [*(ROOT / "benchmarks").rglob("*.py"), *(ROOT / "tests").rglob("*.py")]
     outside = re.compile(r"\.\./shared|/work/|ROOT\.parent\b")
-    found = [f"{f.relative_to(ROOT)}:{i}" for f in files
-             for i, line in enumerate(f.read_text().splitlines(), 1)
-             if outside.search(line) and "re.compile" not in line]  # fmt: skip
+    found = [
+        f"{f.relative_to(ROOT)}:{i}"
+        for f in files
+        for i, line in enumerate(f.read_text().splitlines(), 1)
+        if outside.search(line) and "re.compile" not in line
+    ]
     assert not found, found
 
 
@@ -381,11 +376,13 @@ def test_an_anchor_on_a_maze_reads_the_mazes_success_flag_at_every_step(tmp_path
     assert [info["success"] for info in flags] == [False, True, False, True, False]
     fetch = anchor_success.FetchSuccessKey(FlagEnv(key="is_success"))
     assert [fetch.reset()[1]] + [fetch.step(np.zeros(1))[4] for _ in range(2)] == [
-        {"is_success": False}, {"is_success": True}, {"is_success": False}]  # fmt: skip
+        {"is_success": False},
+        {"is_success": True},
+        {"is_success": False},
+    ]
 
     script = tmp_path / "anchor.py"
-    script.write_text("import sys, gymnasium as gym\n"
-                      "print(type(gym.make('CartPole-v1')).__name__, sys.argv[1:])\n")  # fmt: skip
+    script.write_text("import sys, gymnasium as gym\nprint(type(gym.make('CartPole-v1')).__name__, sys.argv[1:])\n")
     cmd = [sys.executable, "benchmarks/anchor_success.py", str(script), "--seed", "1"]
     out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=True).stdout
     assert out.strip() == "FetchSuccessKey ['--seed', '1']"

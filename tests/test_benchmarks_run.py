@@ -63,8 +63,15 @@ def runner(tmp_path: Path, *flags: str, **env: str) -> subprocess.Popen:
     driver = tmp_path / "driver.py"
     driver.write_text(DRIVER.format(root=str(ROOT), child=str(tmp_path / "child.py")))
     cmd = [sys.executable, str(driver), "--suite", "quick", "--out-dir", str(tmp_path), *flags]
-    return subprocess.Popen(cmd, cwd=ROOT, env={**os.environ, **env}, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+    return subprocess.Popen(
+        cmd,
+        cwd=ROOT,
+        env={**os.environ, **env},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
 
 
 def folder(tmp_path: Path, name: str) -> Path:
@@ -106,9 +113,7 @@ def test_a_signal_stops_the_suite_and_the_same_command_resumes_it(tmp_path, sign
     command then resumes the clean run, starts the stubborn one again and runs the others."""
     proc = runner(tmp_path, "--workers", "2")
     try:
-        wait_for(
-            lambda: all((folder(tmp_path, n) / "starts").exists() for n in ("clean", "stubborn"))
-        )
+        wait_for(lambda: all((folder(tmp_path, n) / "starts").exists() for n in ("clean", "stubborn")))
         os.kill(proc.pid, signum)
         out, err = proc.communicate(timeout=15)
     finally:
@@ -132,8 +137,7 @@ def test_a_signal_stops_the_suite_and_the_same_command_resumes_it(tmp_path, sign
     assert "4 to run, 0 already finished" in out
     assert (folder(tmp_path, "clean") / "resumed").exists()
     assert len((folder(tmp_path, "stubborn") / "starts").read_text().split()) == 2
-    assert all((folder(tmp_path, n) / "exit_code").read_text() == "0\n"
-               for n in ("clean", "stubborn", "queued1", "queued2"))  # fmt: skip
+    assert all((folder(tmp_path, n) / "exit_code").read_text() == "0\n" for n in ("clean", "stubborn", "queued1", "queued2"))
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="PR_SET_PDEATHSIG is Linux's")

@@ -13,15 +13,18 @@ import qprop_ppo
 
 UPDATES = {  # the update of each script, on the on-policy term alone (no critic)
     "ppo_kl": lambda agent, opt, b, beta, **kw: ppo_kl.ppo_kl_update(
-        agent, opt, b, beta, ppo_kl.Args(num_minibatches=2, update_epochs=2, **kw)),
+        agent, opt, b, beta, ppo_kl.Args(num_minibatches=2, update_epochs=2, **kw)
+    ),
     "qprop_ppo": lambda agent, opt, b, beta, **kw: qprop_ppo.qprop_update(
-        agent, opt, b, beta, qprop_ppo.Args(num_minibatches=2, update_epochs=2, **kw)),
+        agent, opt, b, beta, qprop_ppo.Args(num_minibatches=2, update_epochs=2, **kw)
+    ),
     "ipg_her": lambda agent, opt, b, beta, **kw: ipg_her.ipg_update(
-        agent, opt, b, beta, ipg_her.Args(nu=0.5, num_minibatches=2, update_epochs=2, **kw)),
+        agent, opt, b, beta, ipg_her.Args(nu=0.5, num_minibatches=2, update_epochs=2, **kw)
+    ),
     "ipg_her_recipe": lambda agent, opt, b, beta, **kw: ipg_her_recipe.ipg_update(
-        agent, opt, b, beta,
-        ipg_her_recipe.Args(nu=0.5, num_minibatches=2, update_epochs=2, **kw)),
-}  # fmt: skip
+        agent, opt, b, beta, ipg_her_recipe.Args(nu=0.5, num_minibatches=2, update_epochs=2, **kw)
+    ),
+}
 
 
 def update(name: str, beta: float, kl_target: float) -> tuple[float, float]:

@@ -23,8 +23,7 @@ def main_block(text: list[str]) -> int:
     """The lines of the ``if __name__ == "__main__":`` block: from that line to the last
     indented (or blank) line after it."""
     start = text.index('if __name__ == "__main__":')
-    end = next((i for i in range(start + 1, len(text)) if text[i][:1] not in ("", " ", "#")),
-               len(text))  # fmt: skip
+    end = next((i for i in range(start + 1, len(text)) if text[i][:1] not in ("", " ", "#")), len(text))
     while text[end - 1].strip() == "":
         end -= 1
     return end - start

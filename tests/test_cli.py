@@ -29,8 +29,7 @@ import qprop_ppo
 from common import cli, tasks
 from common.run import start_run
 
-SCRIPTS = {"ppo_kl": ppo_kl, "qprop_ppo": qprop_ppo, "ipg_her": ipg_her,
-           "ipg_her_recipe": ipg_her_recipe}  # fmt: skip
+SCRIPTS = {"ppo_kl": ppo_kl, "qprop_ppo": qprop_ppo, "ipg_her": ipg_her, "ipg_her_recipe": ipg_her_recipe}
 
 
 @pytest.mark.parametrize("script", SCRIPTS)
@@ -63,12 +62,15 @@ SCRIPTS = {"ppo_kl": ppo_kl, "qprop_ppo": qprop_ppo, "ipg_her": ipg_her,
         (["--max-grad-norm", "-1"], "--max-grad-norm must be positive, got -1.0"),
         (["--max-grad-norm", "0"], "--max-grad-norm must be positive, got 0.0"),
         (["--vf-coef", "-1"], "--vf-coef must be positive, got -1.0"),
-        (["--save-freq", "1000"], "--save-freq 1000 would be ignored (it saves model.pt, which "
-         "only --save-model writes): add --save-model or leave it out"),
+        (
+            ["--save-freq", "1000"],
+            "--save-freq 1000 would be ignored (it saves model.pt, which "
+            "only --save-model writes): add --save-model or leave it out",
+        ),
         (["--exp-name", "../../x"], "--exp-name '../../x' must be a plain name, without '/'"),
         (["--exp-name", "a/b"], "--exp-name 'a/b' must be a plain name"),
     ],
-)  # fmt: skip
+)
 def test_common_checks(capsys, script, argv, needle):
     """Tasks and values none of the scripts can use (``cli.check_run`` and each script's own)."""
     assert needle in refused(capsys, SCRIPTS[script], *argv)
@@ -88,41 +90,66 @@ UNRECOGNIZED = "unrecognized option {} (--help lists them)"
         ("ppo_kl", ["--kl-target", "0"], "--kl-target must be positive, got 0.0"),
         ("ppo_kl", ["--beta-init", "-1"], "--beta-init must be non-negative, got -1.0"),
         ("qprop_ppo", ["--gamma", "0"], "--gamma must be in (0, 1], got 0.0"),
-        ("qprop_ppo", ["--eta-mode", "foo"], "--eta-mode expects one of (batch-conservative, "
-         "batch-aggressive, conservative, aggressive, ones, none), got 'foo'"),
+        (
+            "qprop_ppo",
+            ["--eta-mode", "foo"],
+            "--eta-mode expects one of (batch-conservative, "
+            "batch-aggressive, conservative, aggressive, ones, none), got 'foo'",
+        ),
         ("qprop_ppo", ["--tau", "-0.1"], "--tau must be in (0, 1], got -0.1"),
         ("qprop_ppo", ["--critic-steps", "-1"], "--critic-steps must be non-negative, got -1"),
         ("qprop_ppo", ["--critic-batch-size", "0"], "--critic-batch-size must be positive, got 0"),
         ("qprop_ppo", ["--critic-hidden", "0"], "--critic-hidden must be positive, got 0"),
-        ("qprop_ppo", ["--buffer-size", "3000"], "--buffer-size 3000 keeps 750 steps per env, "
-         "less than one Hopper-v5 episode (1000 steps); enlarge it"),
+        (
+            "qprop_ppo",
+            ["--buffer-size", "3000"],
+            "--buffer-size 3000 keeps 750 steps per env, less than one Hopper-v5 episode (1000 steps); enlarge it",
+        ),
         ("qprop_ppo", ["--twin-critic"], UNRECOGNIZED.format("--twin-critic")),  # the recipe's
         ("qprop_ppo", ["--kl-early-stop", "0"], "--kl-early-stop must be positive, got 0.0"),
         ("ipg_her", ["--nu", "1.5"], "--nu must be in [0, 1], got 1.5"),
         ("ipg_her", ["--tau", "0"], "--tau must be in (0, 1], got 0.0"),
         ("ipg_her", ["--gae-lambda", "1.1"], "--gae-lambda must be in [0, 1], got 1.1"),
-        ("ipg_her", ["--her-goal-selection-strategy", "foo"],
-         "--her-goal-selection-strategy expects one of (future, final, episode), got 'foo'"),
-        ("ipg_her", ["--her-n-sampled-goal", "-1"],
-         "--her-n-sampled-goal must be non-negative, got -1"),
-        ("ipg_her", ["--off-policy-batch-size", "0"],
-         "--off-policy-batch-size must be positive, got 0"),
+        (
+            "ipg_her",
+            ["--her-goal-selection-strategy", "foo"],
+            "--her-goal-selection-strategy expects one of (future, final, episode), got 'foo'",
+        ),
+        ("ipg_her", ["--her-n-sampled-goal", "-1"], "--her-n-sampled-goal must be non-negative, got -1"),
+        ("ipg_her", ["--off-policy-batch-size", "0"], "--off-policy-batch-size must be positive, got 0"),
         ("ipg_her", ["--env-id", "Hopper-v5", "--her"], f"--her {NOT_A_GOAL_TASK}"),
-        ("ipg_her", ["--env-id", "Hopper-v5", "--her-n-sampled-goal", "2"],
-         f"--her-n-sampled-goal {NOT_A_GOAL_TASK}"),
-        ("ipg_her", ["--no-her", "--her-n-sampled-goal", "2"],
-         "--her-n-sampled-goal would be ignored (--no-her): leave it out"),
-        ("ipg_her", ["--no-her", "--her-goal-selection-strategy=final"],
-         "--her-goal-selection-strategy would be ignored (--no-her): leave it out"),
-        ("ipg_her", ["--off-policy-states", "batch", "--off-policy-batch-size", "64"],
-         "--off-policy-batch-size would be ignored (--off-policy-states batch): leave it out"),
-        ("ipg_her", ["--buffer-size", "10"], "--buffer-size 10 keeps 5 steps per env, less than "
-         "one FetchReach-v4 episode (50 steps); enlarge it"),
+        ("ipg_her", ["--env-id", "Hopper-v5", "--her-n-sampled-goal", "2"], f"--her-n-sampled-goal {NOT_A_GOAL_TASK}"),
+        (
+            "ipg_her",
+            ["--no-her", "--her-n-sampled-goal", "2"],
+            "--her-n-sampled-goal would be ignored (--no-her): leave it out",
+        ),
+        (
+            "ipg_her",
+            ["--no-her", "--her-goal-selection-strategy=final"],
+            "--her-goal-selection-strategy would be ignored (--no-her): leave it out",
+        ),
+        (
+            "ipg_her",
+            ["--off-policy-states", "batch", "--off-policy-batch-size", "64"],
+            "--off-policy-batch-size would be ignored (--off-policy-states batch): leave it out",
+        ),
+        (
+            "ipg_her",
+            ["--buffer-size", "10"],
+            "--buffer-size 10 keeps 5 steps per env, less than one FetchReach-v4 episode (50 steps); enlarge it",
+        ),
         ("ipg_her", ["--hidden", "0"], "--hidden must be positive, got 0"),
-        ("ipg_her", ["--gamma", "1"], "--gamma 1.0 on a goal task: its returns are bounded by "
-         "1 / (1 - gamma), which needs gamma < 1 (e.g. 0.98)"),
-        ("ipg_her_recipe", ["--gamma", "1"], "--gamma 1.0 on a goal task: its returns are "
-         "bounded by 1 / (1 - gamma), which needs gamma < 1 (e.g. 0.98)"),
+        (
+            "ipg_her",
+            ["--gamma", "1"],
+            "--gamma 1.0 on a goal task: its returns are bounded by 1 / (1 - gamma), which needs gamma < 1 (e.g. 0.98)",
+        ),
+        (
+            "ipg_her_recipe",
+            ["--gamma", "1"],
+            "--gamma 1.0 on a goal task: its returns are bounded by 1 / (1 - gamma), which needs gamma < 1 (e.g. 0.98)",
+        ),
         ("ipg_her", ["--critic-steps", "-1"], "--critic-steps must be non-negative, got -1"),
         ("ipg_her", ["--learning-starts", "-1"], "--learning-starts must be non-negative, got -1"),
         ("ipg_her", ["--target-std", "1"], UNRECOGNIZED.format("--target-std, 1")),  # the recipe's
@@ -130,39 +157,45 @@ UNRECOGNIZED = "unrecognized option {} (--help lists them)"
         ("ipg_her_recipe", ["--kl-early-stop", "0"], "--kl-early-stop must be positive, got 0.0"),
         ("ppo_kl", ["--kl-early-stop", "0"], "--kl-early-stop must be positive, got 0.0"),
         ("ipg_her_recipe", ["--nu", "1.5"], "--nu must be in [0, 1], got 1.5"),
-        ("ipg_her_recipe", ["--her-n-sampled-goal", "-1"],
-         "--her-n-sampled-goal must be non-negative, got -1"),
-        ("ipg_her_recipe", ["--buffer-size", "10"], "--buffer-size 10 keeps 5 steps per env, "
-         "less than one FetchReach-v4 episode (50 steps); enlarge it"),
+        ("ipg_her_recipe", ["--her-n-sampled-goal", "-1"], "--her-n-sampled-goal must be non-negative, got -1"),
+        (
+            "ipg_her_recipe",
+            ["--buffer-size", "10"],
+            "--buffer-size 10 keeps 5 steps per env, less than one FetchReach-v4 episode (50 steps); enlarge it",
+        ),
         ("ipg_her_recipe", ["--nu", "0", "--action-l2", "1"], f"--action-l2 {NU_0}"),
         ("ipg_her_recipe", ["--nu", "0", "--twin-critic"], f"--twin-critic {NU_0}"),
         ("ipg_her_recipe", ["--nu", "0", "--bounds-loss", "1"], f"--bounds-loss {NU_0}"),
         ("ipg_her_recipe", ["--action-l2", "-1"], "--action-l2 must be non-negative, got -1.0"),
         ("ipg_her_recipe", ["--bounds-loss", "-1"], "--bounds-loss must be non-negative, got -1.0"),
         ("ipg_her_recipe", ["--target-std", "0"], "--target-std must be positive, got 0.0"),
-        ("ipg_her_recipe", ["--target-std", "1", "-1", "1", "1"],
-         "--target-std must be positive, got 1.0 -1.0 1.0 1.0"),
-        ("ipg_her_recipe", ["--target-std", "1", "0.3"],
-         "--target-std takes one sigma or one per action dimension (4 on FetchReach-v4), not 2"),
-        ("ipg_her_recipe", ["--target-std"],
-         "--target-std takes one sigma or one per action dimension (4 on FetchReach-v4), not 0"),
-        ("ipg_her_recipe", ["--grasped-start", "1.5"],
-         "--grasped-start must be in [0, 1], got 1.5"),
+        ("ipg_her_recipe", ["--target-std", "1", "-1", "1", "1"], "--target-std must be positive, got 1.0 -1.0 1.0 1.0"),
+        (
+            "ipg_her_recipe",
+            ["--target-std", "1", "0.3"],
+            "--target-std takes one sigma or one per action dimension (4 on FetchReach-v4), not 2",
+        ),
+        (
+            "ipg_her_recipe",
+            ["--target-std"],
+            "--target-std takes one sigma or one per action dimension (4 on FetchReach-v4), not 0",
+        ),
+        ("ipg_her_recipe", ["--grasped-start", "1.5"], "--grasped-start must be in [0, 1], got 1.5"),
     ],
-)  # fmt: skip
+)
 def test_algorithm_checks(capsys, script, argv, line):
     assert refused(capsys, SCRIPTS[script], *argv) == f"error: {line}"
 
 
-RECIPE_ONLY = sorted({f.name for f in dataclasses.fields(ipg_her_recipe.Args)}
-                     - {f.name for f in dataclasses.fields(ipg_her.Args)})  # fmt: skip
+RECIPE_ONLY = sorted(
+    {f.name for f in dataclasses.fields(ipg_her_recipe.Args)} - {f.name for f in dataclasses.fields(ipg_her.Args)}
+)
 
 
 def test_the_recipes_flags_are_not_the_papers(capsys):
     """ipg_her.py is the paper's IPG+HER: each flag of the recipe is an unrecognized option
     there (and the recipe is ipg_her.py's flags plus its own)."""
-    assert RECIPE_ONLY == ["action_l2", "bounds_loss", "grasped_start", "target_std",
-                           "twin_critic"]  # fmt: skip
+    assert RECIPE_ONLY == ["action_l2", "bounds_loss", "grasped_start", "target_std", "twin_critic"]
     papers = [(f.name, f.default) for f in dataclasses.fields(ipg_her.Args)]
     assert set(papers) <= {(f.name, f.default) for f in dataclasses.fields(ipg_her_recipe.Args)}
     assert not hasattr(ipg_her, "task_defaults") and not hasattr(ipg_her, "sigma_rule")
@@ -210,9 +243,11 @@ def test_critic_learning_rate_must_be_positive(capsys, script):
 
 @pytest.mark.parametrize(
     "script, argv, needle",
-    [("qprop_ppo", ["--buffer-size", "100000000000"], "--buffer-size 100000000000 needs about "),
-     ("ipg_her", ["--buffer-size", "100000000000"], "--buffer-size 100000000000 needs about ")],
-)  # fmt: skip
+    [
+        ("qprop_ppo", ["--buffer-size", "100000000000"], "--buffer-size 100000000000 needs about "),
+        ("ipg_her", ["--buffer-size", "100000000000"], "--buffer-size 100000000000 needs about "),
+    ],
+)
 def test_a_buffer_larger_than_the_memory_is_refused(capsys, script, argv, needle):
     line = refused(capsys, SCRIPTS[script], *argv)
     assert needle in line and line.endswith("GiB are available; make it smaller"), line
@@ -246,9 +281,24 @@ def test_bad_input_end_to_end_fails_with_one_clear_line_and_no_run_folder(tmp_pa
 
 def test_a_budget_that_is_not_whole_batches_says_what_it_runs(tmp_path):
     """Training runs in whole batches: the first lines say so, with the steps it will run."""
-    flags = ("--env-id", "Hopper-v5", "--total-timesteps", "700", "--num-envs", "2",
-             "--num-steps", "128", "--num-minibatches", "2", "--update-epochs", "1",
-             "--eval-freq", "0", "--eval-episodes", "1")  # fmt: skip
+    flags = (
+        "--env-id",
+        "Hopper-v5",
+        "--total-timesteps",
+        "700",
+        "--num-envs",
+        "2",
+        "--num-steps",
+        "128",
+        "--num-minibatches",
+        "2",
+        "--update-epochs",
+        "1",
+        "--eval-freq",
+        "0",
+        "--eval-episodes",
+        "1",
+    )
     result = run_script("ppo_kl.py", tmp_path, *flags)
     assert result.returncode == 0, result.stderr
     assert "--total-timesteps 700: 512 steps, whole batches of 256" in result.stdout
@@ -259,8 +309,13 @@ def test_a_renderer_that_cannot_load_is_refused_before_training(tmp_path):
     """MuJoCo loads MUJOCO_GL's renderer on import (osmesa without libosmesa6 raised a 38-line
     traceback even for plain training); an unknown one takes the same path."""
     env = {**os.environ, "MUJOCO_GL": "no-such-renderer"}
-    result = subprocess.run([sys.executable, str(ROOT / "ppo_kl.py"), "--log-dir", str(tmp_path)],
-                            env=env, capture_output=True, text=True, timeout=120)  # fmt: skip
+    result = subprocess.run(
+        [sys.executable, str(ROOT / "ppo_kl.py"), "--log-dir", str(tmp_path)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert_clean_error(result, "MUJOCO_GL=no-such-renderer", "unset MUJOCO_GL")
     assert not tmp_path.exists() or not run_dirs(tmp_path)
 
@@ -272,14 +327,12 @@ def test_a_goal_tasks_defaults_follow_from_the_task_and_a_flag_given_wins(capsys
     without goals keeps the Args defaults; one line names what was taken."""
 
     def parse(*argv):
-        return cli.parse_args(ipg_her_recipe.Args, list(argv),
-                              task_defaults=ipg_her_recipe.task_defaults)  # fmt: skip
+        return cli.parse_args(ipg_her_recipe.Args, list(argv), task_defaults=ipg_her_recipe.task_defaults)
 
     push = parse("--env-id", "FetchPush-v4", "--hidden=64")
     taken = (push.hidden, push.target_std, push.gamma, push.grasped_start, push.action_l2)
     assert taken == (64, (1.0,) * 4, 0.98, 0.0, 1.0)
-    line = ("FetchPush-v4: --normalization paper, --action-l2 1.0, --twin-critic, "
-            "--target-std 1.0 1.0 1.0 1.0, --gamma 0.98\n")  # fmt: skip
+    line = "FetchPush-v4: --normalization paper, --action-l2 1.0, --twin-critic, --target-std 1.0 1.0 1.0 1.0, --gamma 0.98\n"
     assert capsys.readouterr().out.endswith(line)  # spelled as one would type them
     own = {  # d action dimensions, H steps an episode, whether the object can be held
         "FetchReach-v4": ((1.0,) * 4, 0.98, 0.0),
@@ -291,8 +344,7 @@ def test_a_goal_tasks_defaults_follow_from_the_task_and_a_flag_given_wins(capsys
     }
     for env_id, (target_std, gamma, grasped_start) in own.items():
         computed = dict(target_std=target_std, gamma=gamma, grasped_start=grasped_start)
-        assert vars(parse("--env-id", env_id)) == vars(ipg_her_recipe.Args(env_id=env_id)) | (
-            ipg_her_recipe.RECIPE | computed)  # fmt: skip
+        assert vars(parse("--env-id", env_id)) == vars(ipg_her_recipe.Args(env_id=env_id)) | (ipg_her_recipe.RECIPE | computed)
         assert capsys.readouterr().out.startswith(f"defaults for {env_id}: --hidden 256,")
     assert vars(parse("--env-id", "Hopper-v5")) == vars(ipg_her_recipe.Args(env_id="Hopper-v5"))
     assert capsys.readouterr().out == ""
@@ -328,9 +380,7 @@ def test_a_flag_given_in_any_spelling_beats_the_tasks_default(capsys, argv, fiel
         assert cli.flag(field) not in line  # not called the task's own
 
 
-@pytest.mark.parametrize(
-    "typed", ["--twin_critic", "--no-twin-critic", "--no_twin_critic", "--no-twin_critic"]
-)
+@pytest.mark.parametrize("typed", ["--twin_critic", "--no-twin-critic", "--no_twin_critic", "--no-twin_critic"])
 def test_an_ignored_boolean_is_refused_whatever_its_spelling(capsys, typed):
     line = refused(capsys, ipg_her_recipe, "--nu", "0", typed)
     assert line.startswith(f"error: {typed} would be ignored (at --nu 0 without --use-cv")
@@ -346,10 +396,12 @@ def test_ignored_gathers_the_rules_that_hold_and_a_later_rule_wins():
     that does not hold adds nothing, and a flag in two rules takes the later one's why."""
     assert cli.ignored() == {}
     assert cli.ignored((False, "--a --b", "never")) == {}
-    assert cli.ignored((True, "--a --b", "first"), (False, "--c", "never")) == {
-        "--a": "first", "--b": "first"}  # fmt: skip
+    assert cli.ignored((True, "--a --b", "first"), (False, "--c", "never")) == {"--a": "first", "--b": "first"}
     assert cli.ignored((True, "--a --b", "first"), (True, "--b --c", "later")) == {
-        "--a": "first", "--b": "later", "--c": "later"}  # fmt: skip
+        "--a": "first",
+        "--b": "later",
+        "--c": "later",
+    }
     assert cli.ignored((True, "--b", "first"), (False, "--b", "never")) == {"--b": "first"}
 
 
@@ -389,13 +441,11 @@ RECIPE_NU0_IGNORED = [  # the recipe's critic flags, and its penalties on the of
 
 @pytest.mark.parametrize(
     "script, argv",
-    [(script, argv) for script in IPG for argv in NU0_IGNORED]
-    + [("ipg_her_recipe", argv) for argv in RECIPE_NU0_IGNORED],
+    [(script, argv) for script in IPG for argv in NU0_IGNORED] + [("ipg_her_recipe", argv) for argv in RECIPE_NU0_IGNORED],
 )
 def test_at_nu_0_without_control_variate_the_critics_flags_are_refused(capsys, script, argv):
     line = refused(capsys, IPG[script], "--nu", "0", *argv)
-    assert line == f"error: {argv[0]} would be ignored (at --nu 0 without --use-cv no term uses " \
-                   "the critic): leave it out"  # fmt: skip
+    assert line == f"error: {argv[0]} would be ignored (at --nu 0 without --use-cv no term uses the critic): leave it out"
     parse(IPG[script], "--nu", "0", "--use-cv", *argv)  # with the control variate they count
     parse(IPG[script], "--nu", "0.5", *argv)  # and in the middle
 
@@ -404,29 +454,42 @@ def test_at_nu_0_without_control_variate_the_critics_flags_are_refused(capsys, s
 @pytest.mark.parametrize(
     "argv, line",
     [
-        (["--her-n-sampled-goal", "0", "--her-goal-selection-strategy", "final"],
-         "--her-goal-selection-strategy would be ignored (--her-n-sampled-goal 0 relabels no "
-         "goal)"),
-        (["--nu", "1", "--use-cv"], "--use-cv would be ignored (at --nu 1 its on-policy term has "
-         "weight 0)"),
+        (
+            ["--her-n-sampled-goal", "0", "--her-goal-selection-strategy", "final"],
+            "--her-goal-selection-strategy would be ignored (--her-n-sampled-goal 0 relabels no goal)",
+        ),
+        (["--nu", "1", "--use-cv"], "--use-cv would be ignored (at --nu 1 its on-policy term has weight 0)"),
         (["--use-cv"], "--use-cv would be ignored (at --nu 1 its on-policy term has weight 0)"),
-        (["--no-norm-adv", "--normalization", "paper"],
-         "--normalization would be ignored (--no-norm-adv: nothing to normalise)"),
-        (["--off-policy-states", "batch", "--off-policy-batch-size", "64"],
-         "--off-policy-batch-size would be ignored (--off-policy-states batch)"),
-        (["--env-id", "Hopper-v5", "--her-goal-selection-strategy", "final"],
-         "--her-goal-selection-strategy would be ignored (Hopper-v5 is not a goal task)"),
+        (
+            ["--no-norm-adv", "--normalization", "paper"],
+            "--normalization would be ignored (--no-norm-adv: nothing to normalise)",
+        ),
+        (
+            ["--off-policy-states", "batch", "--off-policy-batch-size", "64"],
+            "--off-policy-batch-size would be ignored (--off-policy-states batch)",
+        ),
+        (
+            ["--env-id", "Hopper-v5", "--her-goal-selection-strategy", "final"],
+            "--her-goal-selection-strategy would be ignored (Hopper-v5 is not a goal task)",
+        ),
     ],
-)  # fmt: skip
+)
 def test_other_ignored_ipg_combinations_are_refused(capsys, script, argv, line):
     assert refused(capsys, IPG[script], *argv) == f"error: {line}: leave it out"
 
 
 @pytest.mark.parametrize(
-    "argv", [["--tau", "0.1"], ["--critic-steps", "1"], ["--buffer-size", "5000"],
-             ["--learning-starts", "0"], ["--critic-hidden", "64"], ["--normalization", "paper"],
-             ["--critic_learning_rate=1e-4"]],
-)  # fmt: skip
+    "argv",
+    [
+        ["--tau", "0.1"],
+        ["--critic-steps", "1"],
+        ["--buffer-size", "5000"],
+        ["--learning-starts", "0"],
+        ["--critic-hidden", "64"],
+        ["--normalization", "paper"],
+        ["--critic_learning_rate=1e-4"],
+    ],
+)
 def test_qprop_without_a_critic_refuses_the_critics_flags(capsys, argv):
     line = refused(capsys, qprop_ppo, "--eta-mode", "none", *argv)
     assert line.startswith(f"error: {argv[0].split('=')[0]} would be ignored (--eta-mode none")
@@ -440,9 +503,7 @@ def test_qprop_without_advantage_normalisation_refuses_a_normalization_mode(caps
 
 def test_task_defaults_the_run_would_ignore_are_neither_applied_nor_printed(capsys):
     args = parse(ipg_her_recipe, *PUSH, "--nu", "0")
-    assert capsys.readouterr().out == (
-        "defaults for FetchPush-v4: --hidden 256, --target-std 1.0 1.0 1.0 1.0, --gamma 0.98\n"
-    )
+    assert capsys.readouterr().out == ("defaults for FetchPush-v4: --hidden 256, --target-std 1.0 1.0 1.0 1.0, --gamma 0.98\n")
     assert (args.twin_critic, args.action_l2, args.normalization) == (False, 0.0, "unbiased")
     assert (args.hidden, args.target_std) == (256, (1.0,) * 4)  # the policy's: applied
     args = parse(ipg_her_recipe, *PUSH, "--nu", "0", "--use-cv")  # the critic counts again
@@ -454,9 +515,28 @@ def test_nu_0_trains_no_critic_and_a_task_without_goals_says_hindsight_is_off(tm
     """At nu = 0 without control variate nothing uses the critic: it does not train and the
     ipg/* diagnostics, which need it, are not measured; Hopper has no goals: one line says that
     hindsight relabelling is off, before training."""
-    flags = ("--env-id", "Hopper-v5", "--nu", "0", "--total-timesteps", "512", "--num-envs",
-             "2", "--num-steps", "128", "--num-minibatches", "2", "--update-epochs", "1",
-             "--eval-freq", "0", "--eval-episodes", "1", "--eval-workers", "0")  # fmt: skip
+    flags = (
+        "--env-id",
+        "Hopper-v5",
+        "--nu",
+        "0",
+        "--total-timesteps",
+        "512",
+        "--num-envs",
+        "2",
+        "--num-steps",
+        "128",
+        "--num-minibatches",
+        "2",
+        "--update-epochs",
+        "1",
+        "--eval-freq",
+        "0",
+        "--eval-episodes",
+        "1",
+        "--eval-workers",
+        "0",
+    )
     result = run_script("ipg_her.py", tmp_path, *flags)
     assert result.returncode == 0, result.stderr
     lines = result.stdout.splitlines()
@@ -465,9 +545,7 @@ def test_nu_0_trains_no_critic_and_a_task_without_goals_says_hindsight_is_off(tm
     (run_dir,) = run_dirs(tmp_path)
     tags = scalars(run_dir)
     assert "losses/policy_loss" in tags and len(tags["losses/policy_loss"]) == 2
-    assert not {"losses/critic_loss", "losses/q_values", "ipg/grad_var", "ipg/effective_nu"} & set(
-        tags
-    )
+    assert not {"losses/critic_loss", "losses/q_values", "ipg/grad_var", "ipg/effective_nu"} & set(tags)
 
 
 # rows 14/15: nan and inf in any float flag
@@ -497,17 +575,19 @@ def test_a_tuple_of_floats_refuses_nan_and_none_stays_allowed(capsys):
 
 @pytest.mark.parametrize(
     "script, argv, needle",
-    [("ppo_kl", ["--learning-rate", "nan"], "--learning-rate must be a finite number, got nan"),
-     ("qprop_ppo", ["--beta-init", "inf"], "--beta-init must be a finite number, got inf"),
-     ("ipg_her", ["--nu", "0", "--tau", "0.1"], "--tau would be ignored"),
-     ("ipg_her", ["--gamma", "1"], "--gamma 1.0 on a goal task"),
-     ("ipg_her_recipe", ["--gamma", "1"], "--gamma 1.0 on a goal task"),
-     ("ppo_kl", ["--torch-threads", "0"], "--torch-threads must be positive"),
-     ("ppo_kl", ["--exp-name", "../../x"], "--exp-name '../../x' must be a plain name"),
-     ("ipg_her", ["--hidden", "100000"], "--hidden 100000 with batches of 256"),
-     ("ipg_her_recipe", ["--off-policy-batch-size", "1000000000"], "batches of 1,000,000,000"),
-     ("qprop_ppo", ["--critic-hidden", "200000"], "--critic-hidden 200000 with")],
-)  # fmt: skip
+    [
+        ("ppo_kl", ["--learning-rate", "nan"], "--learning-rate must be a finite number, got nan"),
+        ("qprop_ppo", ["--beta-init", "inf"], "--beta-init must be a finite number, got inf"),
+        ("ipg_her", ["--nu", "0", "--tau", "0.1"], "--tau would be ignored"),
+        ("ipg_her", ["--gamma", "1"], "--gamma 1.0 on a goal task"),
+        ("ipg_her_recipe", ["--gamma", "1"], "--gamma 1.0 on a goal task"),
+        ("ppo_kl", ["--torch-threads", "0"], "--torch-threads must be positive"),
+        ("ppo_kl", ["--exp-name", "../../x"], "--exp-name '../../x' must be a plain name"),
+        ("ipg_her", ["--hidden", "100000"], "--hidden 100000 with batches of 256"),
+        ("ipg_her_recipe", ["--off-policy-batch-size", "1000000000"], "batches of 1,000,000,000"),
+        ("qprop_ppo", ["--critic-hidden", "200000"], "--critic-hidden 200000 with"),
+    ],
+)
 def test_refusals_end_to_end_leave_no_run_folder(tmp_path, script, argv, needle):
     result = run_script(f"{script}.py", tmp_path, *argv, timeout=120)
     assert_clean_error(result, needle)
@@ -524,24 +604,28 @@ def test_refusals_end_to_end_leave_no_run_folder(tmp_path, script, argv, needle)
         ("ppo_kl", ["--seed=x"], "--seed expects an integer, got 'x'"),
         ("qprop_ppo", ["--gamma", "high"], "--gamma expects a number, got 'high'"),
         ("ppo_kl", ["--kl-early-stop", "x"], "--kl-early-stop expects a number or None, got 'x'"),
-        ("ipg_her_recipe", ["--target-std", "1", "x"],
-         "--target-std expects None, a number or several, got '1 x'"),
+        ("ipg_her_recipe", ["--target-std", "1", "x"], "--target-std expects None, a number or several, got '1 x'"),
         ("ipg_her", ["--q-bar", "foo"], "--q-bar expects one of (mean, sample), got 'foo'"),
-        ("ipg_her", ["--her_goal_selection_strategy=best"],
-         "--her-goal-selection-strategy expects one of (future, final, episode), got 'best'"),
-        ("qprop_ppo", ["--eta-mode", "x"], "--eta-mode expects one of (batch-conservative, "
-         "batch-aggressive, conservative, aggressive, ones, none), got 'x'"),
+        (
+            "ipg_her",
+            ["--her_goal_selection_strategy=best"],
+            "--her-goal-selection-strategy expects one of (future, final, episode), got 'best'",
+        ),
+        (
+            "qprop_ppo",
+            ["--eta-mode", "x"],
+            "--eta-mode expects one of (batch-conservative, batch-aggressive, conservative, aggressive, ones, none), got 'x'",
+        ),
         ("ppo_kl", ["--env-id"], "--env-id expects a value"),
     ],
-)  # fmt: skip
+)
 def test_a_parse_error_is_one_line_saying_what_the_flag_expects(capsys, script, argv, line):
     assert refused(capsys, SCRIPTS[script], *argv) == f"error: {line}"
 
 
 # row 18: one flag and its value per error (test_cli.py's test_algorithm_checks); an old task
 # version's current one
-@pytest.mark.parametrize("old, current", [("FetchReach-v1", "FetchReach-v4"),
-                                          ("FetchPush-v1", "FetchPush-v4")])  # fmt: skip
+@pytest.mark.parametrize("old, current", [("FetchReach-v1", "FetchReach-v4"), ("FetchPush-v1", "FetchPush-v4")])
 def test_an_old_task_version_suggests_the_current_one(capsys, old, current):
     """A mujoco-py task: its name's highest version that constructs, not an unrelated one."""
     line = refused(capsys, ppo_kl, "--env-id", old)
@@ -554,11 +638,8 @@ def test_a_task_of_a_users_module_is_imported_first_and_a_missing_one_refused(tm
     """gymnasium's ``module:Task-v0``: the module registers the task (docs/your_goal_task.md), so
     it is imported before the id is looked up; in a fresh process only that import registers it."""
     result = run_script("ipg_her.py", tmp_path, "--env-id", "tests.point_goal:PointGoal-v9")
-    assert_clean_error(result, "unknown --env-id 'tests.point_goal:PointGoal-v9'; "
-                               "did you mean tests.point_goal:PointGoal-v0?")  # fmt: skip
-    assert parse(ipg_her, "--env-id", "tests.point_goal:PointGoal-v0").env_id.endswith(
-        ":PointGoal-v0"
-    )
+    assert_clean_error(result, "unknown --env-id 'tests.point_goal:PointGoal-v9'; did you mean tests.point_goal:PointGoal-v0?")
+    assert parse(ipg_her, "--env-id", "tests.point_goal:PointGoal-v0").env_id.endswith(":PointGoal-v0")
     line = refused(capsys, ipg_her, "--env-id", "no_such_module:PointGoal-v0")
     assert "cannot import no_such_module (ModuleNotFoundError" in line, line
 
@@ -571,17 +652,15 @@ def test_a_task_without_a_time_limit_or_with_goals_not_vectors_is_refused(capsys
         def __init__(self):
             super().__init__()
             box = gym.spaces.Box(-1.0, 1.0, (2, 2), np.float64)
-            self.observation_space = gym.spaces.Dict(
-                {"observation": box, "achieved_goal": box, "desired_goal": box}
-            )
+            self.observation_space = gym.spaces.Dict({"observation": box, "achieved_goal": box, "desired_goal": box})
 
-    for env_id, entry, limit in (("PointGoalForever-v0", PointGoal, None),
-                                 ("MatrixGoal-v0", MatrixGoal, 50)):  # fmt: skip
+    for env_id, entry, limit in (("PointGoalForever-v0", PointGoal, None), ("MatrixGoal-v0", MatrixGoal, 50)):
         if env_id not in gym.registry:
             gym.register(env_id, entry_point=entry, max_episode_steps=limit)
     line = refused(capsys, ipg_her, "--env-id", "PointGoalForever-v0")
-    assert line == ("error: PointGoalForever-v0 has no time limit: register it with "
-                    "max_episode_steps, so that its episodes end")  # fmt: skip
+    assert line == (
+        "error: PointGoalForever-v0 has no time limit: register it with max_episode_steps, so that its episodes end"
+    )
     line = refused(capsys, ipg_her, "--env-id", "MatrixGoal-v0")
     assert line.startswith("error: MatrixGoal-v0's observations are not supported"), line
 
@@ -605,8 +684,7 @@ def test_a_goal_task_whose_observations_are_not_its_declared_space_is_refused(ca
 
 def test_capture_video_on_a_task_that_renders_no_frames_says_so(capsys):
     line = refused(capsys, ipg_her, "--env-id", "tests.point_goal:PointGoal-v0", "--capture-video")
-    assert line == ("error: --capture-video: tests.point_goal:PointGoal-v0 renders no rgb_array "
-                    "frames (render_modes [])")  # fmt: skip
+    assert line == ("error: --capture-video: tests.point_goal:PointGoal-v0 renders no rgb_array frames (render_modes [])")
 
 
 # row 19: a task without goals trains without HER, and says so
@@ -615,8 +693,10 @@ def test_ipg_on_a_task_without_goals_says_hindsight_is_off(capsys, script):
     parse(IPG[script], "--env-id", "Hopper-v5")
     assert capsys.readouterr().out == "Hopper-v5 has no goals: hindsight relabelling (HER) is off\n"
     parse(IPG[script], "--env-id", "FetchReach-v4")
-    recipe = ("defaults for FetchReach-v4: --hidden 256, --normalization paper, --action-l2 1.0, "
-              "--twin-critic, --target-std 1.0 1.0 1.0 1.0, --gamma 0.98\n")  # fmt: skip
+    recipe = (
+        "defaults for FetchReach-v4: --hidden 256, --normalization paper, --action-l2 1.0, "
+        "--twin-critic, --target-std 1.0 1.0 1.0 1.0, --gamma 0.98\n"
+    )
     assert capsys.readouterr().out == (recipe if script == "ipg_her_recipe" else "")
 
 

@@ -77,9 +77,7 @@ def check_step(module, target_of, target_range=None):
     grads = torch.autograd.grad(loss, list(twin.parameters()))
     expected = flat(qf) - LR * torch.cat([g.flatten() for g in grads])
     optimizer = torch.optim.SGD(qf.parameters(), lr=LR)
-    got_loss, got_mean_q = call(
-        module, qf, qf_target, optimizer, agent, d, target_range=target_range
-    )
+    got_loss, got_mean_q = call(module, qf, qf_target, optimizer, agent, d, target_range=target_range)
     assert got_loss == pytest.approx(loss.item(), rel=1e-5)
     assert got_mean_q == pytest.approx(q.mean().item(), rel=1e-5)
     torch.testing.assert_close(flat(qf), expected)
@@ -151,12 +149,10 @@ def test_twin_critic_targets_the_smaller_target_q_and_steps_each_network_on_its_
         mu_next = agent.actor_mean(d["next_obs"])
         q1n, q2n = qf_target(d["next_obs"], mu_next, both=True)
         qf_target.twin[0][-1].bias.add_((q1n - q2n).median())  # the two cross
-        q1n, q2n = (n(torch.cat([d["next_obs"], mu_next], -1)).squeeze(-1)
-                    for n in (qf_target.net, qf_target.twin[0]))  # fmt: skip
+        q1n, q2n = (n(torch.cat([d["next_obs"], mu_next], -1)).squeeze(-1) for n in (qf_target.net, qf_target.twin[0]))
         assert (q1n < q2n).any() and (q2n < q1n).any()
         rows = range(len(d["rewards"]))
-        y = torch.stack([d["rewards"][i] + (1 - d["terminations"][i]) * GAMMA
-                         * torch.minimum(q1n[i], q2n[i]) for i in rows])  # fmt: skip
+        y = torch.stack([d["rewards"][i] + (1 - d["terminations"][i]) * GAMMA * torch.minimum(q1n[i], q2n[i]) for i in rows])
     copy_ = copy.deepcopy(qf)
     q1, q2 = copy_(d["obs"], d["actions"], both=True)
     loss = 0.5 * ((q1 - y) ** 2).mean() + 0.5 * ((q2 - y) ** 2).mean()
@@ -169,8 +165,7 @@ def test_twin_critic_targets_the_smaller_target_q_and_steps_each_network_on_its_
     torch.testing.assert_close(flat(qf), expected)
 
 
-NET_NAMES = {"net.0.weight", "net.0.bias", "net.2.weight", "net.2.bias", "net.4.weight",
-             "net.4.bias", "low", "high"}  # fmt: skip
+NET_NAMES = {"net.0.weight", "net.0.bias", "net.2.weight", "net.2.bias", "net.4.weight", "net.4.bias", "low", "high"}
 
 
 @pytest.mark.parametrize("script", MODULES)

@@ -43,9 +43,7 @@ def task_tables(suite: str, seeds: tuple[int, ...] = ()) -> str:
     them; with ``seeds``, from those seeds' runs only."""
     groups = curves(suite)
     if seeds:
-        groups = {
-            g: {s: r for s, r in runs.items() if int(s) in seeds} for g, runs in groups.items()
-        }
+        groups = {g: {s: r for s, r in runs.items() if int(s) in seeds} for g, runs in groups.items()}
         groups = {g: runs for g, runs in groups.items() if runs}
     peers = load_peers(SIDE_BY_SIDE)
     ran = defaultdict(set)
@@ -136,9 +134,7 @@ def test_each_results_md_holds_the_tables_its_curves_json_gives(suite):
     committed = (RESULTS / suite / "results.md").read_text()
     groups = curves(suite)
     computed = task_tables(suite) + "\n" + tables.table(groups, report.Args.window)
-    missing = [
-        line for line in computed.splitlines() if line.startswith("|") and line not in committed
-    ]
+    missing = [line for line in computed.splitlines() if line.startswith("|") and line not in committed]
     assert not missing, f"benchmarks/results/{suite}/results.md lacks: {missing[:3]}"
 
 
@@ -149,10 +145,7 @@ def test_each_results_md_holds_the_tables_its_curves_json_gives(suite):
 def side_by_side() -> tuple[float, float]:
     """The medians of the training seconds to 0.9 in the against_sb3 export: ours, SB3's."""
     data = json.loads(SIDE_BY_SIDE.read_text())
-    return tuple(
-        statistics.median(r["train_s_to_0.9"] for r in data[key])
-        for key in ("ipg_her", "sb3_ddpg_her")
-    )
+    return tuple(statistics.median(r["train_s_to_0.9"] for r in data[key]) for key in ("ipg_her", "sb3_ddpg_her"))
 
 
 def every_seed_at(suite: str, group: str, level: float) -> str:
@@ -163,9 +156,7 @@ def every_seed_at(suite: str, group: str, level: float) -> str:
 
 
 def highest_eval(suite: str, *groups: str) -> str:
-    values = [
-        v for g in groups for run in curves(suite)[g].values() for _, v in run["eval/success_rate"]
-    ]
+    values = [v for g in groups for run in curves(suite)[g].values() for _, v in run["eval/success_rate"]]
     return f"{max(values):.2f}"
 
 
@@ -193,12 +184,10 @@ def readme_rows() -> dict[str, list[str]]:
     return {
         "Does the main job learn FetchReach, and how fast? (seeds 21-25)": [
             f"success 0.9 after a median {reach_side.split()[0]} steps, as SB3's DDPG+HER",
-            f"{sb3 / ours:.1f} times less training time, side by side (medians of {ours:.2f} s "
-            f"against {sb3:.2f} s",
+            f"{sb3 / ours:.1f} times less training time, side by side (medians of {ours:.2f} s against {sb3:.2f} s",
             "21-25",
         ],
-        "IPG + HER > Q-Prop > PPO-KL on FetchReach? (seeds 1-5, which chose `ipg_her.py`'s "
-        "defaults; 30k steps)": [
+        "IPG + HER > Q-Prop > PPO-KL on FetchReach? (seeds 1-5, which chose `ipg_her.py`'s defaults; 30k steps)": [
             f"IPG + HER 1.00 by {her} steps in every seed, IPG without HER by {no_her}",
             "PPO-KL and Q-Prop no evaluation above "
             + highest_eval("paper", "ppo_kl__FetchReach-v4", "qprop_ppo__FetchReach-v4"),
@@ -475,9 +464,7 @@ def test_each_headline_row_of_the_results_pages_is_its_exports(page):
         suite, name = SOURCES[key]
         for column in [c for c in cells if c == FINAL or c.startswith("first eval")]:
             computed = export_cell(suite, task, name, column, cells["seeds"])
-            assert cells[column] == computed, (
-                f"{page}, {key}, {column}: the {suite} export gives {computed!r}"
-            )
+            assert cells[column] == computed, f"{page}, {key}, {column}: the {suite} export gives {computed!r}"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -513,9 +500,7 @@ def test_the_flags_the_docs_give_are_the_ones_the_winning_runs_ran(task):
 
     _, name, _, _, flags = WINNERS[task]
     ran = next(row[3] for row in RUNS["fetch"].rows if row[0] == name and row[2] == task)
-    settings = [
-        vars(parse(ipg_her_recipe, "--env-id", task, *argv)) for argv in (ran, flags.split())
-    ]
+    settings = [vars(parse(ipg_her_recipe, "--env-id", task, *argv)) for argv in (ran, flags.split())]
     assert {k: v for k, v in settings[0].items() if k not in SETTINGS_ONLY} == {
         k: v for k, v in settings[1].items() if k not in SETTINGS_ONLY
     }, f"{task}: the docs' {flags!r} is not what benchmarks/run.py ran ({' '.join(ran)})"

@@ -30,6 +30,4 @@ def test_the_reading_guide_names_functions_that_exist():
     defined = set(re.findall(r"^\s*(?:def|class)\s+(\w+)", source, flags=re.MULTILINE))
     defined |= set(re.findall(r"^([A-Z_]+) = ", source, flags=re.MULTILINE))  # module constants
     missing = sorted(names - defined)
-    assert not missing, (
-        f"docs/index.md's reading guide names what the code does not define: {missing}"
-    )
+    assert not missing, f"docs/index.md's reading guide names what the code does not define: {missing}"

@@ -15,8 +15,20 @@ import qprop_ppo
 from common import checkpoint, evaluate
 from common.normalizer import RunningMeanStd
 
-TINY_PPO = ["--num-envs", "2", "--num-steps", "64", "--total-timesteps", "128",
-            "--num-minibatches", "2", "--update-epochs", "1", "--eval-episodes", "2"]  # fmt: skip
+TINY_PPO = [
+    "--num-envs",
+    "2",
+    "--num-steps",
+    "64",
+    "--total-timesteps",
+    "128",
+    "--num-minibatches",
+    "2",
+    "--update-epochs",
+    "1",
+    "--eval-episodes",
+    "2",
+]
 
 
 @pytest.fixture(scope="module")
@@ -36,9 +48,7 @@ def test_the_command_prints_the_runs_own_last_evaluation(hopper_run, capsys):
     assert capsys.readouterr().out.startswith("3 episodes: return ")
 
 
-def test_a_resume_file_or_a_folder_holding_only_one_evaluates_its_policy(
-    hopper_run, tmp_path, capsys
-):
+def test_a_resume_file_or_a_folder_holding_only_one_evaluates_its_policy(hopper_run, tmp_path, capsys):
     """A run without --save-model: its resume.pt (here written at the end) replays the run's
     last evaluation like the model.pt does, also as the only file of a folder; on a goal task
     (FetchReach, its goal normaliser) too."""
@@ -47,8 +57,7 @@ def test_a_resume_file_or_a_folder_holding_only_one_evaluates_its_policy(
     (fetch_run,) = run_dirs(tmp_path / "fetch")
     (tmp_path / "copy").mkdir()
     (tmp_path / "copy" / "resume.pt").write_bytes((hopper_run / "resume.pt").read_bytes())
-    for path, run in ((hopper_run / "resume.pt", hopper_run), (tmp_path / "copy", hopper_run),
-                      (fetch_run, fetch_run)):  # fmt: skip
+    for path, run in ((hopper_run / "resume.pt", hopper_run), (tmp_path / "copy", hopper_run), (fetch_run, fetch_run)):
         last = scalars(run)["eval/episodic_return"][-1][1]
         assert evaluate.main([str(path)]) == 0
         assert capsys.readouterr().out.startswith(f"2 episodes: return {last:.2f} ± ")
@@ -79,8 +88,13 @@ def test_a_model_or_resume_file_that_would_run_code_is_refused_without_running_i
     marker = tmp_path / "PWNED"
     evil = {"format_version": checkpoint.FORMAT_VERSION, "agent": Payload(marker)}
     torch.save(evil, tmp_path / "model.pt")
-    result = subprocess.run([sys.executable, "-m", "common.evaluate", str(tmp_path / "model.pt")],
-                            cwd=ROOT, capture_output=True, text=True, timeout=120)  # fmt: skip
+    result = subprocess.run(
+        [sys.executable, "-m", "common.evaluate", str(tmp_path / "model.pt")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert_clean_error(result, "was refused")
     with pytest.raises(checkpoint.CheckpointError, match="was refused"):
         evaluate.load_policy(str(tmp_path))
@@ -92,9 +106,7 @@ def test_a_model_or_resume_file_that_would_run_code_is_refused_without_running_i
     assert not marker.exists(), "unpickling ran the file's command"
 
 
-def test_the_policy_is_the_scripts_network_rebuilt_from_its_saved_layer_kinds(
-    hopper_run, tmp_path, capsys
-):
+def test_the_policy_is_the_scripts_network_rebuilt_from_its_saved_layer_kinds(hopper_run, tmp_path, capsys):
     """The layer kinds saved beside the weights are data: the policy evaluate runs is the
     script's own actor (its forward pass, not a copy of it), a changed kind changes it, and a
     kind outside Linear/Tanh/ReLU or a missing one is refused in one line."""
@@ -109,9 +121,12 @@ def test_the_policy_is_the_scripts_network_rebuilt_from_its_saved_layer_kinds(
     with torch.no_grad():
         mean = agent.actor_mean(policy.inputs(obs))[0].numpy()
     np.testing.assert_array_equal(policy(obs), np.clip(mean, -1, 1))
-    for kinds, works in ((["Linear", "ReLU", "Linear", "Tanh", "Linear"], True),
-                         (["Linear", "Tanh", "Linear", "Dropout", "Linear"], False),
-                         (["Linear", "Tanh", "Linear"], False), (None, False)):  # fmt: skip
+    for kinds, works in (
+        (["Linear", "ReLU", "Linear", "Tanh", "Linear"], True),
+        (["Linear", "Tanh", "Linear", "Dropout", "Linear"], False),
+        (["Linear", "Tanh", "Linear"], False),
+        (None, False),
+    ):
         content["agent_layers"]["actor_mean"] = kinds
         torch.save(content, tmp_path / "model.pt")
         if works:
@@ -131,8 +146,14 @@ def test_bad_input_gets_one_clear_line(hopper_run, tmp_path, capsys):
     assert "format 99" in refused(capsys, str(tmp_path / "future.pt"))
     # a model.pt of the code before the teaching edition (format 1: numpy arrays pickled)
     normalizer = {"mean": np.zeros(11), "var": np.ones(11), "count": 1.0, "clip": 10.0}
-    old = {"format_version": 1, "script": "ppo_kl", "args": {"env_id": "Hopper-v5"},
-           "last_eval_seeds": [1], "normalizer": normalizer, "agent": {}}  # fmt: skip
+    old = {
+        "format_version": 1,
+        "script": "ppo_kl",
+        "args": {"env_id": "Hopper-v5"},
+        "last_eval_seeds": [1],
+        "normalizer": normalizer,
+        "agent": {},
+    }
     torch.save(old, tmp_path / "old.pt")
     assert "format 1's pickled arrays are refused" in refused(capsys, str(tmp_path / "old.pt"))
     assert "NoSuchEnv-v0" in refused(capsys, str(hopper_run), "--env-id", "NoSuchEnv-v0")
@@ -158,8 +179,9 @@ def test_a_model_file_never_chooses_the_code_that_is_imported(hopper_run, tmp_pa
         path = renamed(hopper_run, tmp_path, f"{module}:Hopper-v5")
         cmd = [sys.executable, "-m", "common.evaluate", str(path)]
         result = subprocess.run(cmd, env=env, cwd=tmp_path, capture_output=True, text=True)
-        assert_clean_error(result, f"this policy was trained on {module}:Hopper-v5; pass "
-                                   f"--env-id {module}:Hopper-v5 to import {module}")  # fmt: skip
+        assert_clean_error(
+            result, f"this policy was trained on {module}:Hopper-v5; pass --env-id {module}:Hopper-v5 to import {module}"
+        )
         assert "Beautiful is better" not in result.stdout + result.stderr
         with pytest.raises(ValueError, match="pass --env-id"):
             evaluate.load_policy(str(path))
@@ -168,9 +190,14 @@ def test_a_model_file_never_chooses_the_code_that_is_imported(hopper_run, tmp_pa
         evaluate.load_policy(str(renamed(hopper_run, tmp_path, "gone_module:Hopper-v5")))
     line = refused(capsys, str(tmp_path / "model.pt"), "--env-id", "gone_module:Hopper-v5")
     assert "cannot import gone_module (ModuleNotFoundError" in line, line
-    result = subprocess.run([sys.executable, "-m", "common.evaluate", str(path), "--env-id",
-                             "notes:Hopper-v5", "--seed", "1", "--episodes", "1"], env=env,
-                            cwd=tmp_path, capture_output=True, text=True, timeout=120)  # fmt: skip
+    result = subprocess.run(
+        [sys.executable, "-m", "common.evaluate", str(path), "--env-id", "notes:Hopper-v5", "--seed", "1", "--episodes", "1"],
+        env=env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode == 0 and (tmp_path / "RAN").exists(), result.stderr
 
 
@@ -178,9 +205,12 @@ def test_a_task_evaluate_cannot_drive_is_one_line(hopper_run, tmp_path, monkeypa
     """Discrete actions, a missing dependency, mujoco-py, a user's module that raises."""
     (tmp_path / "raising.py").write_text("raise RuntimeError('broken on purpose')\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    for env_id, needle in (("CartPole-v1", "Discrete actions"), ("CarRacing-v3", "not installed"),
-                           ("Hopper-v2", "mujoco-py"), ("raising:Task-v0", "cannot import "
-                           "raising (RuntimeError: broken")):  # fmt: skip
+    for env_id, needle in (
+        ("CartPole-v1", "Discrete actions"),
+        ("CarRacing-v3", "not installed"),
+        ("Hopper-v2", "mujoco-py"),
+        ("raising:Task-v0", "cannot import raising (RuntimeError: broken"),
+    ):
         assert needle in refused(capsys, str(hopper_run), "--env-id", env_id), env_id
 
 
@@ -213,9 +243,7 @@ def test_an_interrupted_save_leaves_the_previous_checkpoint_loadable(tmp_path, m
 def osmesa_available() -> bool:
     code = "import mujoco; mujoco.GLContext(8, 8)"
     env = {**os.environ, "MUJOCO_GL": "osmesa"}
-    return (
-        subprocess.run([sys.executable, "-c", code], env=env, capture_output=True).returncode == 0
-    )
+    return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True).returncode == 0
 
 
 @pytest.mark.parametrize(
@@ -234,7 +262,7 @@ def osmesa_available() -> bool:
                 "--eval-episodes",
                 "1",
             ],
-        ),  # fmt: skip
+        ),
     ],
 )
 def test_capture_video_records_an_mp4_with_frames(tmp_path, script, flags):
@@ -311,8 +339,7 @@ def test_background_evaluator_sends_tensors_under_a_deep_tmpdir(tmp_path):
         "evaluator.close()\n"
     )
     env = {**os.environ, "TMPDIR": str(tmpdir)}
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
-                          cwd=ROOT, timeout=120)  # fmt: skip
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT, timeout=120)
     assert done.returncode == 0 and done.stdout == "[2.0, 2.0, 2.0]\n", done.stdout + done.stderr
 
 
@@ -334,6 +361,4 @@ def test_resume_accepts_flags_added_since_at_their_defaults_and_refuses_a_jumpin
     checkpoint.load_resume_state(str(tmp_path), qprop_ppo.Args(anneal_lr=True, resume_freq=9))
     checkpoint.load_resume_state(str(tmp_path), qprop_ppo.Args(anneal_lr=True, exp_name="renamed"))
     with pytest.raises(checkpoint.CheckpointError, match="--anneal-lr"):
-        checkpoint.load_resume_state(
-            str(tmp_path), qprop_ppo.Args(anneal_lr=True, total_timesteps=9)
-        )
+        checkpoint.load_resume_state(str(tmp_path), qprop_ppo.Args(anneal_lr=True, total_timesteps=9))

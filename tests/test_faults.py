@@ -20,8 +20,7 @@ from conftest import ROOT, assert_clean_error, run_dirs, run_script, scalars
 
 from common import checkpoint, evaluate, stops
 
-TINY = ("--env-id", "FetchReach-v4", "--total-timesteps", "200", "--eval-freq", "0",
-        "--eval-episodes", "2")  # fmt: skip
+TINY = ("--env-id", "FetchReach-v4", "--total-timesteps", "200", "--eval-freq", "0", "--eval-episodes", "2")
 ENV = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}
 
 
@@ -61,9 +60,7 @@ def finished_run(tmp_path_factory):
     return run_dirs(log_dir)[0]
 
 
-def test_a_nan_stop_keeps_the_good_model_and_evaluate_refuses_a_nan_one(
-    monkeypatch, tmp_path, capsys
-):
+def test_a_nan_stop_keeps_the_good_model_and_evaluate_refuses_a_nan_one(monkeypatch, tmp_path, capsys):
     """A NaN injected into the weights at the third update: the model.pt saved at step 256
     stays as it was, the run exits 1 with one error line, its last line names that model; a
     model holding NaN is refused by ``common.evaluate`` with one line."""
@@ -78,10 +75,28 @@ def test_a_nan_stop_keeps_the_good_model_and_evaluate_refuses_a_nan_one(
                     p.data.fill_(float("nan"))
         return out
 
-    argv = ["ppo_kl.py", "--log-dir", str(tmp_path), "--num-envs", "2", "--num-steps", "64",
-            "--total-timesteps", "1024", "--num-minibatches", "2", "--update-epochs", "1",
-            "--eval-freq", "0", "--eval-workers", "0", "--save-model",
-            "--save-freq", "256"]  # fmt: skip
+    argv = [
+        "ppo_kl.py",
+        "--log-dir",
+        str(tmp_path),
+        "--num-envs",
+        "2",
+        "--num-steps",
+        "64",
+        "--total-timesteps",
+        "1024",
+        "--num-minibatches",
+        "2",
+        "--update-epochs",
+        "1",
+        "--eval-freq",
+        "0",
+        "--eval-workers",
+        "0",
+        "--save-model",
+        "--save-freq",
+        "256",
+    ]
     monkeypatch.setattr(torch.optim.Adam, "step", poisoned)
     monkeypatch.setattr(sys, "argv", argv)
     saved = {}
@@ -110,10 +125,25 @@ def test_a_nan_stop_keeps_the_good_model_and_evaluate_refuses_a_nan_one(
 
 def test_the_last_line_of_a_nan_stop_names_the_good_model(tmp_path):
     """The same stop seen from outside: one error line, the last line names model.pt's step."""
-    result = run_script("qprop_ppo.py", tmp_path, "--env-id", "Hopper-v5",
-                        "--critic-learning-rate", "1e8", "--num-steps", "128", "--save-model",
-                        "--save-freq", "512", "--resume-freq", "512", "--total-timesteps",
-                        "20480", "--eval-freq", "0")  # fmt: skip
+    result = run_script(
+        "qprop_ppo.py",
+        tmp_path,
+        "--env-id",
+        "Hopper-v5",
+        "--critic-learning-rate",
+        "1e8",
+        "--num-steps",
+        "128",
+        "--save-model",
+        "--save-freq",
+        "512",
+        "--resume-freq",
+        "512",
+        "--total-timesteps",
+        "20480",
+        "--eval-freq",
+        "0",
+    )
     assert result.returncode == 1, result.stdout + result.stderr
     assert_clean_error(result, "NaN or infinite")
     last = result.stdout.strip().splitlines()[-1]
@@ -149,8 +179,9 @@ def test_a_second_sigterm_cannot_cut_the_clean_up_short():
 def test_kill_9_leaves_no_process_behind(tmp_path):
     """The evaluation worker (and what multiprocessing started beside it) ends with its run,
     even in the middle of a long evaluation (30,000 episodes: minutes)."""
-    proc, _ = start(tmp_path, "--env-id", "FetchReach-v4", "--total-timesteps", "1000000",
-                    "--eval-freq", "100", "--eval-episodes", "30000")  # fmt: skip
+    proc, _ = start(
+        tmp_path, "--env-id", "FetchReach-v4", "--total-timesteps", "1000000", "--eval-freq", "100", "--eval-episodes", "30000"
+    )
     deadline = time.time() + 60
     while not (kids := children(proc.pid)) and time.time() < deadline:
         time.sleep(0.5)
@@ -171,9 +202,17 @@ def test_kill_9_leaves_no_process_behind(tmp_path):
 def test_a_pipe_closed_by_ctrl_c_costs_no_checkpoint(tmp_path):
     """``... --save-model 2>&1 | tee log`` and Ctrl-C: tee dies too, the run's output goes
     nowhere, yet the model is saved and the exit code is Ctrl-C's."""
-    proc, run_dir = start(tmp_path, "--env-id", "FetchReach-v4", "--total-timesteps",
-                          "1000000", "--eval-freq", "200", "--save-model",
-                          stderr=subprocess.STDOUT)  # fmt: skip
+    proc, run_dir = start(
+        tmp_path,
+        "--env-id",
+        "FetchReach-v4",
+        "--total-timesteps",
+        "1000000",
+        "--eval-freq",
+        "200",
+        "--save-model",
+        stderr=subprocess.STDOUT,
+    )
     while "evaluation of step" not in proc.stdout.readline():
         pass
     proc.stdout.close()  # tee is gone
@@ -184,8 +223,9 @@ def test_a_pipe_closed_by_ctrl_c_costs_no_checkpoint(tmp_path):
 
 def test_a_signal_during_the_last_evaluation_stops_at_once(tmp_path):
     """The final evaluation (30,000 episodes: minutes) is dropped, not waited for."""
-    proc, _ = start(tmp_path, "--env-id", "FetchReach-v4", "--total-timesteps", "200",
-                    "--eval-freq", "0", "--eval-episodes", "30000")  # fmt: skip
+    proc, _ = start(
+        tmp_path, "--env-id", "FetchReach-v4", "--total-timesteps", "200", "--eval-freq", "0", "--eval-episodes", "30000"
+    )
     time.sleep(15)  # training's 200 steps are done; the evaluation of 1.5M steps is not
     assert proc.poll() is None
     sent = time.time()
@@ -201,8 +241,9 @@ def test_a_second_run_of_a_folder_in_use_is_refused(finished_run):
     with open(finished_run / "run.lock", "a+") as held:
         fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)  # as a live run holds it
         before = sorted(os.listdir(finished_run))
-        result = run_script("ipg_her.py", finished_run.parent, *TINY, "--save-model",
-                            "--resume-freq", "100", "--resume", str(finished_run))  # fmt: skip
+        result = run_script(
+            "ipg_her.py", finished_run.parent, *TINY, "--save-model", "--resume-freq", "100", "--resume", str(finished_run)
+        )
     assert_clean_error(result, "is in use by a running process")
     assert sorted(os.listdir(finished_run)) == before
 
@@ -221,10 +262,12 @@ def test_a_broken_resume_file_is_one_line_and_writes_nothing(finished_run, tmp_p
     else:
         os.truncate(resume, 1000)
     before = sorted(os.listdir(run_dir))
-    result = run_script("ipg_her.py", tmp_path, *TINY, "--save-model", "--resume-freq", "100",
-                        "--resume", str(run_dir))  # fmt: skip
-    needle = {"a model.pt": "a model.pt, not a resume point", "no rng": "lacks rng",
-              "truncated": "is truncated or corrupt (1,000 bytes)"}[damage]  # fmt: skip
+    result = run_script("ipg_her.py", tmp_path, *TINY, "--save-model", "--resume-freq", "100", "--resume", str(run_dir))
+    needle = {
+        "a model.pt": "a model.pt, not a resume point",
+        "no rng": "lacks rng",
+        "truncated": "is truncated or corrupt (1,000 bytes)",
+    }[damage]
     assert_clean_error(result, str(resume), needle)
     assert sorted(os.listdir(run_dir)) == before
 
@@ -262,11 +305,29 @@ def test_a_run_out_of_disk_stops_in_one_line_and_keeps_its_resume_point(tmp_path
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 
     result = subprocess.run(
-        [sys.executable, str(ROOT / "ipg_her.py"), "--log-dir", str(tmp_path), "--env-id",
-         "FetchReach-v4", "--total-timesteps", "30000", "--eval-freq", "0", "--eval-episodes",
-         "2", "--resume-freq", "500"], cwd=ROOT, env=ENV, capture_output=True, text=True,
-        preexec_fn=cap, timeout=300,
-    )  # fmt: skip
+        [
+            sys.executable,
+            str(ROOT / "ipg_her.py"),
+            "--log-dir",
+            str(tmp_path),
+            "--env-id",
+            "FetchReach-v4",
+            "--total-timesteps",
+            "30000",
+            "--eval-freq",
+            "0",
+            "--eval-episodes",
+            "2",
+            "--resume-freq",
+            "500",
+        ],
+        cwd=ROOT,
+        env=ENV,
+        capture_output=True,
+        text=True,
+        preexec_fn=cap,
+        timeout=300,
+    )
     assert result.returncode == 1, result.stdout + result.stderr
     assert_clean_error(result, "could not write", "resume.pt")
     (run_dir,) = run_dirs(tmp_path)
@@ -278,8 +339,7 @@ def test_a_run_out_of_disk_stops_in_one_line_and_keeps_its_resume_point(tmp_path
 
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_an_interrupted_evaluation_is_one_line(finished_run, sig, code):
-    cmd = [sys.executable, "-m", "common.evaluate", str(finished_run), "--episodes", "100000",
-           "--seed", "1"]  # fmt: skip
+    cmd = [sys.executable, "-m", "common.evaluate", str(finished_run), "--episodes", "100000", "--seed", "1"]
     proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, stderr=subprocess.PIPE, text=True)
     time.sleep(12)  # imported, evaluating 100,000 episodes (minutes)
     proc.send_signal(sig)
@@ -303,9 +363,20 @@ def own_tmp(tmp_path) -> dict:
 def test_a_closed_terminal_stops_the_run_as_kill_does(tmp_path):
     """SIGHUP (to the whole process group, as a closing terminal sends it): the closing line,
     exit 129, model.pt saved, no leaked semaphore, no multiprocessing temporary folder left."""
-    proc, run_dir = start(tmp_path / "runs", "--env-id", "FetchReach-v4", "--total-timesteps",
-                          "1000000", "--eval-freq", "200", "--eval-episodes", "2", "--save-model",
-                          env=own_tmp(tmp_path), start_new_session=True)  # fmt: skip
+    proc, run_dir = start(
+        tmp_path / "runs",
+        "--env-id",
+        "FetchReach-v4",
+        "--total-timesteps",
+        "1000000",
+        "--eval-freq",
+        "200",
+        "--eval-episodes",
+        "2",
+        "--save-model",
+        env=own_tmp(tmp_path),
+        start_new_session=True,
+    )
     until(proc, "evaluation of step")  # the worker is up
     os.killpg(proc.pid, signal.SIGHUP)
     out, err = proc.communicate(timeout=120)
@@ -320,9 +391,19 @@ def test_a_closed_terminal_stops_the_run_as_kill_does(tmp_path):
 def test_more_ctrl_c_during_the_clean_up_cannot_cut_it_short(tmp_path):
     """Ctrl-C, then again and again while the run saves and exits: one clean stop, nothing
     ignored in an exit handler, no temporary folder left."""
-    proc, run_dir = start(tmp_path / "runs", "--env-id", "FetchReach-v4", "--total-timesteps",
-                          "1000000", "--eval-freq", "200", "--eval-episodes", "2", "--save-model",
-                          env=own_tmp(tmp_path))  # fmt: skip
+    proc, run_dir = start(
+        tmp_path / "runs",
+        "--env-id",
+        "FetchReach-v4",
+        "--total-timesteps",
+        "1000000",
+        "--eval-freq",
+        "200",
+        "--eval-episodes",
+        "2",
+        "--save-model",
+        env=own_tmp(tmp_path),
+    )
     until(proc, "evaluation of step")
     for _ in range(60):  # 3 s of Ctrl-C
         if proc.poll() is not None:
@@ -351,8 +432,9 @@ def evaluation_worker(pid: int) -> int:
 
 def test_training_goes_on_when_the_evaluation_worker_is_killed(tmp_path):
     """kill -9 of the worker: one warning line, every evaluation still logged, exit 0."""
-    proc, run_dir = start(tmp_path, "--env-id", "FetchReach-v4", "--total-timesteps", "2000",
-                          "--eval-freq", "200", "--eval-episodes", "2")  # fmt: skip
+    proc, run_dir = start(
+        tmp_path, "--env-id", "FetchReach-v4", "--total-timesteps", "2000", "--eval-freq", "200", "--eval-episodes", "2"
+    )
     until(proc, "evaluation of step 200 ")
     os.kill(evaluation_worker(proc.pid), signal.SIGKILL)
     out, err = proc.communicate(timeout=300)
@@ -375,10 +457,28 @@ def test_a_run_folder_turned_read_only_stops_in_one_line(monkeypatch, tmp_path, 
                 raise PermissionError(errno.EPERM, os.strerror(errno.EPERM), str(name))
         return real_open(name, mode, *args, **kwargs)
 
-    argv = ["ppo_kl.py", "--log-dir", str(tmp_path), "--num-envs", "2", "--num-steps", "64",
-            "--total-timesteps", "1024", "--num-minibatches", "2", "--update-epochs", "1",
-            "--eval-freq", "0", "--eval-workers", "0", "--resume-freq", "256",
-            "--save-model"]  # fmt: skip
+    argv = [
+        "ppo_kl.py",
+        "--log-dir",
+        str(tmp_path),
+        "--num-envs",
+        "2",
+        "--num-steps",
+        "64",
+        "--total-timesteps",
+        "1024",
+        "--num-minibatches",
+        "2",
+        "--update-epochs",
+        "1",
+        "--eval-freq",
+        "0",
+        "--eval-workers",
+        "0",
+        "--resume-freq",
+        "256",
+        "--save-model",
+    ]
     monkeypatch.setattr(checkpoint, "open", read_only, raising=False)
     monkeypatch.setattr(sys, "argv", argv)
     with pytest.raises(SystemExit) as stop:
@@ -398,8 +498,7 @@ def test_a_run_folder_turned_read_only_stops_in_one_line(monkeypatch, tmp_path, 
 def test_ctrl_c_while_evaluate_starts_is_one_line(finished_run, delay):
     """Ctrl-C at any moment of ``python -m common.evaluate``'s start (torch's import, the task's
     checks, loading): one line, Ctrl-C's exit code."""
-    cmd = [sys.executable, "-m", "common.evaluate", str(finished_run), "--episodes", "100000",
-           "--seed", "1"]  # fmt: skip
+    cmd = [sys.executable, "-m", "common.evaluate", str(finished_run), "--episodes", "100000", "--seed", "1"]
     proc = subprocess.Popen(cmd, cwd=ROOT, env=ENV, stderr=subprocess.PIPE, text=True)
     time.sleep(delay)
     proc.send_signal(signal.SIGINT)
@@ -444,8 +543,7 @@ def test_ctrl_c_while_a_library_loads_ends_the_script_even_if_the_library_catche
     into an ImportError, as mujoco's start-up does)."""
     argv = ["ipg_her.py", "--log-dir", str(tmp_path), *TINY]
     driver = SWALLOWED.format(argv=argv, script=str(ROOT / "ipg_her.py"))
-    result = subprocess.run([sys.executable, "-c", driver], cwd=ROOT, env=ENV,
-                            capture_output=True, text=True, timeout=120)  # fmt: skip
+    result = subprocess.run([sys.executable, "-c", driver], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=120)
     assert result.returncode == 130, result.stderr
     assert result.stderr == "interrupted; nothing was written\n", result.stderr
     assert not list(tmp_path.iterdir())
@@ -462,10 +560,18 @@ runpy.run_path({script!r}, run_name="__main__")
 
 
 def test_ctrl_c_while_a_resume_point_loads_is_one_line(finished_run, tmp_path):
-    argv = ["ipg_her.py", "--log-dir", str(tmp_path), *TINY, "--save-model", "--resume-freq",
-            "100", "--resume", str(finished_run)]  # fmt: skip
+    argv = [
+        "ipg_her.py",
+        "--log-dir",
+        str(tmp_path),
+        *TINY,
+        "--save-model",
+        "--resume-freq",
+        "100",
+        "--resume",
+        str(finished_run),
+    ]
     driver = DRIVER.format(argv=argv, script=str(ROOT / "ipg_her.py"))
-    result = subprocess.run([sys.executable, "-c", driver], cwd=ROOT, env=ENV,
-                            capture_output=True, text=True, timeout=120)  # fmt: skip
+    result = subprocess.run([sys.executable, "-c", driver], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=120)
     assert result.returncode in (130, -signal.SIGINT), result.stderr
     assert result.stderr == "interrupted; nothing was written\n", result.stderr

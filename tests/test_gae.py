@@ -47,16 +47,20 @@ def batch_of(script, T, N, seed, ends, terminations, gamma, lam):
     g = torch.Generator().manual_seed(seed)
     agent = script.Agent(2, 1)
     agent.get_value = lambda x: x[..., 0]
-    ro = {"obs": torch.randn(T, N, 2, generator=g), "final_obs": torch.randn(T, N, 2, generator=g),
-          "actions": torch.randn(T, N, 1, generator=g), "rewards": torch.randn(T, N, generator=g),
-          "terminations": terminations, "episode_ends": ends}  # fmt: skip
+    ro = {
+        "obs": torch.randn(T, N, 2, generator=g),
+        "final_obs": torch.randn(T, N, 2, generator=g),
+        "actions": torch.randn(T, N, 1, generator=g),
+        "rewards": torch.randn(T, N, generator=g),
+        "terminations": terminations,
+        "episode_ends": ends,
+    }
     last_obs = torch.randn(N, 2, generator=g)
     b = script.make_batch(agent, ro, last_obs, gamma, lam)
     values = ro["obs"][..., 0]
     next_values = torch.cat([values[1:], last_obs[None, :, 0]])
     next_values = torch.where(ends.bool(), ro["final_obs"][..., 0], next_values)  # true last state
-    expected = explicit_gae(*(x.double() for x in (ro["rewards"], values, next_values)),
-                            terminations, ends, gamma, lam)  # fmt: skip
+    expected = explicit_gae(*(x.double() for x in (ro["rewards"], values, next_values)), terminations, ends, gamma, lam)
     return b, expected.float(), values
 
 
@@ -83,9 +87,14 @@ def test_gae_lambda_limits(script):
     g = torch.Generator().manual_seed(3)
     agent = script.Agent(2, 1)
     agent.get_value = lambda x: x[..., 0]
-    ro = {"obs": torch.randn(T, N, 2, generator=g), "final_obs": torch.zeros(T, N, 2),
-          "actions": torch.randn(T, N, 1, generator=g), "rewards": torch.randn(T, N, generator=g),
-          "terminations": zeros, "episode_ends": zeros}  # fmt: skip
+    ro = {
+        "obs": torch.randn(T, N, 2, generator=g),
+        "final_obs": torch.zeros(T, N, 2),
+        "actions": torch.randn(T, N, 1, generator=g),
+        "rewards": torch.randn(T, N, generator=g),
+        "terminations": zeros,
+        "episode_ends": zeros,
+    }
     last_obs = torch.randn(N, 2, generator=g)
     b1 = script.make_batch(agent, ro, last_obs, gamma, 1.0)
     discounts = gamma ** torch.arange(T, dtype=torch.float32)

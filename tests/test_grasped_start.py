@@ -50,16 +50,16 @@ def test_tasks_without_a_free_gripper_are_refused():
 
 @pytest.mark.parametrize(
     ("flags", "needle"),
-    [(("--env-id", "FetchPush-v4", "--grasped-start", "0.5"), "gripper can hold"),
-     (("--env-id", TASK, "--grasped-start", "1.5"), "in [0, 1]")],
-)  # fmt: skip
+    [
+        (("--env-id", "FetchPush-v4", "--grasped-start", "0.5"), "gripper can hold"),
+        (("--env-id", TASK, "--grasped-start", "1.5"), "in [0, 1]"),
+    ],
+)
 def test_the_recipe_refuses_grasped_starts_it_cannot_make(tmp_path, flags, needle):
     assert_clean_error(run_script("ipg_her_recipe.py", tmp_path, *flags), needle)
 
 
-def test_pick_and_place_trains_from_grasped_starts_and_evaluates_from_the_tasks_own(
-    monkeypatch, tmp_path
-):
+def test_pick_and_place_trains_from_grasped_starts_and_evaluates_from_the_tasks_own(monkeypatch, tmp_path):
     """ipg_her_recipe.py --grasped-start 1: every training episode starts with the object
     between the fingers (the flag reaches the training envs); every evaluation episode starts as
     the task does, the object apart on the table (the published success rates are the task's)."""
@@ -79,9 +79,25 @@ def test_pick_and_place_trains_from_grasped_starts_and_evaluates_from_the_tasks_
         calls[0] += 1
         return policy_call(self, obs, stochastic)
 
-    argv = ["ipg_her_recipe.py", "--env-id", "FetchPickAndPlace-v4", "--grasped-start", "1.0",
-            "--total-timesteps", "200", "--critic-steps", "2", "--eval-freq", "100",
-            "--eval-episodes", "3", "--eval-workers", "0", "--log-dir", str(tmp_path)]  # fmt: skip
+    argv = [
+        "ipg_her_recipe.py",
+        "--env-id",
+        "FetchPickAndPlace-v4",
+        "--grasped-start",
+        "1.0",
+        "--total-timesteps",
+        "200",
+        "--critic-steps",
+        "2",
+        "--eval-freq",
+        "100",
+        "--eval-episodes",
+        "3",
+        "--eval-workers",
+        "0",
+        "--log-dir",
+        str(tmp_path),
+    ]
     monkeypatch.setattr(GraspedStart, "reset", recording_reset)
     monkeypatch.setattr(evaluate.Policy, "__call__", recording_call)
     monkeypatch.setattr(sys, "argv", argv)

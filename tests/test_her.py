@@ -27,9 +27,7 @@ def fill(buffer, lengths_per_env, steps, unfinished_tail=True):
     for _ in range(steps):
         now = np.stack([[e, ep[e], t[e]] for e in range(num_envs)]).astype(np.float32)
         nxt = now + np.array([0, 0, 1], np.float32)
-        length = np.array(
-            [lengths_per_env[e][k[e] % len(lengths_per_env[e])] for e in range(num_envs)]
-        )
+        length = np.array([lengths_per_env[e][k[e] % len(lengths_per_env[e])] for e in range(num_envs)])
         ended = t + 1 >= length
         goal = np.stack([[e, ep[e], -1] for e in range(num_envs)]).astype(np.float32)
         buffer.add(
@@ -79,9 +77,7 @@ def test_relabelled_goals_come_from_the_same_episode_and_rewards_from_the_next_a
     np.testing.assert_array_equal(batch["next_achieved_goal"], obs + [0, 0, 1])  # ag_{t+1}
     np.testing.assert_array_equal(batch["next_obs"], obs + [0, 0, 1])
     # real transitions keep their goal and reward
-    np.testing.assert_array_equal(
-        goal[~relabelled], np.c_[obs[~relabelled, :2], -np.ones(np.sum(~relabelled))]
-    )
+    np.testing.assert_array_equal(goal[~relabelled], np.c_[obs[~relabelled, :2], -np.ones(np.sum(~relabelled))])
     # relabelled goals: same env, same episode, an achieved goal ag_{j+1} at the strategy's steps
     np.testing.assert_array_equal(goal[relabelled, :2], obs[relabelled, :2])
     t, g_t, T = obs[relabelled, 2], goal[relabelled, 2], episode_length(buffer, batch)[relabelled]
@@ -92,9 +88,7 @@ def test_relabelled_goals_come_from_the_same_episode_and_rewards_from_the_next_a
     else:
         assert np.all((g_t >= 1) & (g_t <= T)) and np.any(g_t <= t)
     # every reward is compute_reward(next achieved goal, goal); relabelling produces successes
-    np.testing.assert_array_equal(
-        batch["rewards"], compute_reward(batch["next_achieved_goal"], goal)
-    )
+    np.testing.assert_array_equal(batch["rewards"], compute_reward(batch["next_achieved_goal"], goal))
     assert np.all(batch["rewards"][~relabelled] == -1) and np.any(batch["rewards"][relabelled] == 0)
 
 
@@ -113,9 +107,7 @@ def test_unfinished_episodes_are_never_sampled():
     with pytest.raises(ValueError, match="no finished episode"):
         buffer.sample(1)
     buffer = make(k=4)
-    ep, t = fill(
-        buffer, [[10], [50]], 35
-    )  # env 0: three finished episodes and half of one; env 1: none
+    ep, t = fill(buffer, [[10], [50]], 35)  # env 0: three finished episodes and half of one; env 1: none
     assert list(ep) == [3, 0] and buffer.num_sampleable() == 30
     batch = buffer.sample(4000)
     assert np.all(batch["obs"][:, 0] == 0) and set(batch["obs"][:, 1]) == {0, 1, 2}
@@ -134,13 +126,9 @@ def test_wrap_around_with_two_envs_never_mixes_episodes():
     batch = buffer.sample(5000)
     assert set(batch["obs"][:, 0]) == {0, 1}
     relabelled = batch["relabelled"]
-    np.testing.assert_array_equal(
-        batch["desired_goal"][relabelled, :2], batch["obs"][relabelled, :2]
-    )
+    np.testing.assert_array_equal(batch["desired_goal"][relabelled, :2], batch["obs"][relabelled, :2])
     assert np.all(batch["desired_goal"][relabelled, 2] > batch["obs"][relabelled, 2])
-    np.testing.assert_array_equal(
-        batch["rewards"], compute_reward(batch["next_achieved_goal"], batch["desired_goal"])
-    )
+    np.testing.assert_array_equal(batch["rewards"], compute_reward(batch["next_achieved_goal"], batch["desired_goal"]))
 
 
 def test_bad_configuration_is_refused():
@@ -223,9 +211,7 @@ def test_her_flags_a_run_would_ignore():
     k0 = her.ignored(her.HerArgs(her_n_sampled_goal=0), "FetchReach-v4", True)
     assert k0 == {"--her-goal-selection-strategy": "--her-n-sampled-goal 0 relabels no goal"}
     assert her.ignored(her.HerArgs(), "FetchReach-v4", True) == {}
-    assert (
-        her.ignored(her.HerArgs(her=False, her_n_sampled_goal=0), "FetchReach-v4", True) == no_her
-    )
+    assert her.ignored(her.HerArgs(her=False, her_n_sampled_goal=0), "FetchReach-v4", True) == no_her
 
 
 def run_args(**her_flags) -> her.HerArgs:
@@ -269,10 +255,7 @@ def test_a_goal_task_without_a_batched_compute_reward_is_refused():
             gym.register(env_id, env_class, max_episode_steps=5)
         for args in (run_args(), run_args(her=False)):
             why = her.check(args, env_id, True)
-            assert (
-                why.startswith(env_id)
-                and "compute_reward(achieved_goal, desired_goal, info)" in why
-            )
+            assert why.startswith(env_id) and "compute_reward(achieved_goal, desired_goal, info)" in why
             assert "takes a batch of goals and returns one reward each" in why
     assert "returned shape () for 2 goals" in her.reward_refusal("ScalarReward-v0")
     assert her.reward_refusal("tests.point_goal:PointGoal-v0") is None
@@ -284,8 +267,7 @@ def test_a_buffer_that_cannot_hold_one_episode_per_env_is_refused():
     (buffer_size // num_envs) must hold the task's longest episode; a task without a time limit
     has no such bound."""
     assert replay.buffer_refusal(99, 2, "FetchReach-v4") == (
-        "--buffer-size 99 keeps 49 steps per env, less than one FetchReach-v4 episode (50 steps); "
-        "enlarge it"
+        "--buffer-size 99 keeps 49 steps per env, less than one FetchReach-v4 episode (50 steps); enlarge it"
     )
     assert replay.buffer_refusal(100, 2, "FetchReach-v4") is None  # exactly one episode each
     assert replay.buffer_refusal(1999, 2, "Hopper-v5").startswith("--buffer-size 1999 keeps 999")

@@ -150,16 +150,14 @@ def test_at_nu_one_sigma_follows_only_the_kl_penalty_unless_q_bar_is_sampled(q_b
     "script, env_id, flags",
     [
         ("ipg_her", "FetchReach-v4", ["--her"]),
-        ("ipg_her", "FetchReach-v4",
-         ["--no-her", "--nu", "0.5", "--use-cv", "--off-policy-states", "batch"]),
+        ("ipg_her", "FetchReach-v4", ["--no-her", "--nu", "0.5", "--use-cv", "--off-policy-states", "batch"]),
         ("ipg_her", "FetchPush-v4", []),  # the paper's algorithm on a hard task: it runs
-        ("ipg_her_recipe", "Hopper-v5",
-         ["--num-steps", "100", "--twin-critic", "--q-bar", "sample"]),
+        ("ipg_her_recipe", "Hopper-v5", ["--num-steps", "100", "--twin-critic", "--q-bar", "sample"]),
         ("ipg_her_recipe", "FetchPush-v4", []),  # the fetch suite's tasks (benchmarks/run.py),
         ("ipg_her_recipe", "FetchPickAndPlace-v4", []),  # each with its own defaults
         ("ipg_her_recipe", "FetchSlide-v4", []),
     ],
-)  # fmt: skip
+)
 def test_smoke(tmp_path, script, env_id, flags):
     tiny = "--total-timesteps 400 --num-envs 2 --critic-steps 4 --update-epochs 2"
     tiny += " --eval-freq 200 --eval-episodes 2 --hidden 32 --save-model"
@@ -221,9 +219,7 @@ def test_replayed_transitions_never_cross_a_reset_and_keep_the_true_final_observ
     ro, _, episodes = ipg_her.rollout(envs, agent, norm, raw_obs, 30, rb)
     n = rb.filled
     assert n == 30 and len(episodes) == int(ro["episode_ends"].sum()) > 0
-    np.testing.assert_array_equal(
-        rb.next_obs[:n], rb.obs[:n] + [0, 1]
-    )  # same episode, one step later
+    np.testing.assert_array_equal(rb.next_obs[:n], rb.obs[:n] + [0, 1])  # same episode, one step later
     np.testing.assert_array_equal(rb.next_achieved_goal[:n], rb.achieved_goal[:n] + [0, 1])
     np.testing.assert_array_equal(rb.desired_goal[:n, :, 0], rb.obs[:n, :, 0])
     ends = ro["episode_ends"].numpy().astype(bool)
@@ -272,8 +268,7 @@ def policy_after_one_update(c, nu, use_cv, normalization, q_bar="sample"):
     if use_cv:
         b["cv"] = ipg_her.control_variate(q, agent, b["obs"], b["actions"])
     states = torch.randn(64, 5, generator=torch.Generator().manual_seed(3))
-    args = ipg_her.Args(nu=nu, use_cv=use_cv, normalization=normalization, q_bar=q_bar,
-                        num_minibatches=2, update_epochs=2)  # fmt: skip
+    args = ipg_her.Args(nu=nu, use_cv=use_cv, normalization=normalization, q_bar=q_bar, num_minibatches=2, update_epochs=2)
     optimizer = torch.optim.Adam(agent.parameters(), lr=1e-3)
     torch.manual_seed(1)
     ipg_her.ipg_update(agent, optimizer, b, 1.0, args, q, replay_of(states))
@@ -316,9 +311,16 @@ def test_update_direction_is_a_positive_multiple_of_eq_10(nu, use_cv, module):
     g_off = grad(-qf(b["obs"], agent.actor_mean(b["obs"])).mean())
     expected = ((1 - nu) * g_on + (1.0 if use_cv else nu) * g_off) / sigma
 
-    args = module.Args(nu=nu, use_cv=use_cv, q_bar="mean", off_policy_states="batch",
-                       num_minibatches=1, update_epochs=1, vf_coef=0.0,
-                       max_grad_norm=1e9)  # fmt: skip
+    args = module.Args(
+        nu=nu,
+        use_cv=use_cv,
+        q_bar="mean",
+        off_policy_states="batch",
+        num_minibatches=1,
+        update_epochs=1,
+        vf_coef=0.0,
+        max_grad_norm=1e9,
+    )
     before = torch.cat([p.detach().flatten() for p in agent.actor_parameters()])
     module.ipg_update(agent, torch.optim.SGD(agent.parameters(), lr=1.0), b, 0.0, args, qf)
     after = torch.cat([p.detach().flatten() for p in agent.actor_parameters()])
@@ -331,8 +333,14 @@ def test_replay_rewards_are_scaled_like_gae_rewards():
     for scale in (1.0, 0.25):
         rb = replay.ReplayBuffer(100, 1, 2, 1, seed=0)
         for t in range(10):
-            rb.add(np.full((1, 2), t), np.zeros((1, 1)), np.array([t - 5.0]),
-                   np.full((1, 2), t + 1), np.zeros(1), np.array([t == 9]))  # fmt: skip
+            rb.add(
+                np.full((1, 2), t),
+                np.zeros((1, 1)),
+                np.array([t - 5.0]),
+                np.full((1, 2), t + 1),
+                np.zeros(1),
+                np.array([t == 9]),
+            )
         batches.append(replay.sample_replay(rb, InputNormalizer(2, 0), scale, 32)[0])
     torch.testing.assert_close(batches[1]["rewards"], 0.25 * batches[0]["rewards"])
     assert batches[0]["rewards"].abs().sum() > 0
@@ -349,15 +357,14 @@ def test_critic_targets_are_clipped_only_where_the_reward_is_fetchs_0_or_minus_1
 
 def diagnostics_run(seed: int = 0):
     """What ``interpolation_report`` reads of a ``Run``: the diagnostics' own random streams."""
-    return SimpleNamespace(diagnostics_rng=np.random.default_rng(seed),
-                           diagnostics_generator=torch.Generator().manual_seed(seed))  # fmt: skip
+    return SimpleNamespace(
+        diagnostics_rng=np.random.default_rng(seed), diagnostics_generator=torch.Generator().manual_seed(seed)
+    )
 
 
 def interpolation(agent, qf, b, args, states, chunks=4):
     """``interpolation_report`` as ipg_her.py calls it, its replay always drawing ``states``."""
-    return ipg_her.interpolation_report(
-        agent, qf, b, args, lambda n, rng: [{"obs": states}], diagnostics_run(), chunks
-    )
+    return ipg_her.interpolation_report(agent, qf, b, args, lambda n, rng: [{"obs": states}], diagnostics_run(), chunks)
 
 
 def test_gradient_diagnostics_measure_the_two_terms_and_the_control_variates_variance():
@@ -442,10 +449,26 @@ def test_diagnostics_do_not_change_the_training(tmp_path):
     for every in ("1", "0"):
         log_dir = tmp_path / every
         result = run_script(
-            "ipg_her.py", log_dir, "--total-timesteps", "300", "--critic-steps", "4",
-            "--update-epochs", "2", "--eval-episodes", "1", "--hidden", "16", "--nu", "0.5",
-            "--q-bar", "sample", "--diagnostics-every", every, "--save-model",
-        )  # fmt: skip
+            "ipg_her.py",
+            log_dir,
+            "--total-timesteps",
+            "300",
+            "--critic-steps",
+            "4",
+            "--update-epochs",
+            "2",
+            "--eval-episodes",
+            "1",
+            "--hidden",
+            "16",
+            "--nu",
+            "0.5",
+            "--q-bar",
+            "sample",
+            "--diagnostics-every",
+            every,
+            "--save-model",
+        )
         assert result.returncode == 0, result.stderr
         (run_dir,) = run_dirs(log_dir)
         states.append(torch.load(run_dir / "model.pt", weights_only=False))
@@ -461,9 +484,25 @@ def test_resume_goes_on_deterministically_and_an_interrupted_stretch_is_not_logg
     """A run stopped at a resume point goes on from resume.pt into the same folder; from the same
     resume.pt the continuation is the same, bit for bit; events an interrupted run logged after
     its last resume point are dropped, so every step is logged once; other flags are refused."""
-    flags = ("--total-timesteps", "200", "--critic-steps", "4", "--update-epochs", "2",
-             "--eval-freq", "100", "--eval-episodes", "1", "--hidden", "16", "--nu", "0.5",
-             "--resume-freq", "100", "--save-model")  # fmt: skip
+    flags = (
+        "--total-timesteps",
+        "200",
+        "--critic-steps",
+        "4",
+        "--update-epochs",
+        "2",
+        "--eval-freq",
+        "100",
+        "--eval-episodes",
+        "1",
+        "--hidden",
+        "16",
+        "--nu",
+        "0.5",
+        "--resume-freq",
+        "100",
+        "--save-model",
+    )
     result = run_script("ipg_her.py", tmp_path, *flags)
     assert result.returncode == 0, result.stderr
     (run_dir,) = run_dirs(tmp_path)
@@ -497,10 +536,30 @@ def test_the_control_variate_waits_for_the_critic(tmp_path):
     """Before the critic learns (learning_starts), the off-policy term that offsets A_bar is off,
     so A_bar must be off too: with --use-cv the run is the run without it, scalar for scalar (it
     subtracted an untrained critic's A_bar, uncompensated)."""
-    flags = ("--seed", "2", "--total-timesteps", "1024",
-             "--num-envs", "2", "--num-steps", "256", "--num-minibatches", "4",
-             "--update-epochs", "2", "--nu", "0.5", "--learning-starts", "100000",
-             "--eval-freq", "0", "--eval-episodes", "1", "--eval-workers", "0")  # fmt: skip
+    flags = (
+        "--seed",
+        "2",
+        "--total-timesteps",
+        "1024",
+        "--num-envs",
+        "2",
+        "--num-steps",
+        "256",
+        "--num-minibatches",
+        "4",
+        "--update-epochs",
+        "2",
+        "--nu",
+        "0.5",
+        "--learning-starts",
+        "100000",
+        "--eval-freq",
+        "0",
+        "--eval-episodes",
+        "1",
+        "--eval-workers",
+        "0",
+    )
     runs = []
     for extra in ((), ("--use-cv",)):
         _, tags = smoke_run("ipg_her.py", tmp_path / str(len(runs)), "Hopper-v5", *flags, *extra)
@@ -520,9 +579,7 @@ def test_sigma_rule_is_one_step_of_dual_ascent_on_the_target_entropy():
     h = lambda std: 0.5 * np.log(2 * np.pi * np.e * np.square(std))  # noqa: E731  H(N(0, std^2))
     sigma, target, alpha = np.array([0.5, 2.0, 1.0]), (1.0, 1.0, 0.3), np.array([0.1, 0.2, 0.3])
     expected = alpha + 0.01 * (h(np.array(target)) - h(sigma))
-    np.testing.assert_allclose(
-        ipg_her_recipe.sigma_rule(alpha, 99.0, np.log(sigma), target), expected
-    )
+    np.testing.assert_allclose(ipg_her_recipe.sigma_rule(alpha, 99.0, np.log(sigma), target), expected)
 
 
 def sigma_rule_alone(act_dim: int, target_std, updates: int, start_std: float = 1.0):
@@ -537,9 +594,7 @@ def sigma_rule_alone(act_dim: int, target_std, updates: int, start_std: float = 
         b = random_batch(32, 3, act_dim, agent)
         _, stats = ipg_her_recipe.ipg_update(agent, optimizer, b, 0.0, args, alpha=alpha)
         log_std = agent.actor_logstd.detach().numpy()[0]
-        alpha = ipg_her_recipe.sigma_rule(
-            alpha, stats["charts/policy_entropy"], log_std, target_std
-        )
+        alpha = ipg_her_recipe.sigma_rule(alpha, stats["charts/policy_entropy"], log_std, target_std)
         alphas.append(alpha)
         sigmas.append(np.exp(log_std))
     return alphas, np.array(sigmas)
@@ -585,14 +640,13 @@ def test_bounds_loss_adds_the_gradient_of_the_squared_excess_beyond_the_bounds()
     b, steps = random_batch(64, 5, 2, agent), []
     for weight in (0.0, 0.5):
         a = copy.deepcopy(agent)
-        args = ipg_her_recipe.Args(nu=1.0, bounds_loss=weight, num_minibatches=1, update_epochs=1,
-                            vf_coef=0.0, max_grad_norm=1e9)  # fmt: skip
-        ipg_her_recipe.ipg_update(a, torch.optim.SGD(a.parameters(), lr=1.0), b, 0.0, args, qf,
-                           replay_of(states))  # fmt: skip
+        args = ipg_her_recipe.Args(
+            nu=1.0, bounds_loss=weight, num_minibatches=1, update_epochs=1, vf_coef=0.0, max_grad_norm=1e9
+        )
+        ipg_her_recipe.ipg_update(a, torch.optim.SGD(a.parameters(), lr=1.0), b, 0.0, args, qf, replay_of(states))
         steps.append(torch.cat([p.detach().flatten() for p in a.actor_parameters()]))
     beyond = (mu - 1.0).clamp(min=0.0)  # by hand: only dim 1 ever exceeds a bound
-    grads = torch.autograd.grad(0.5 * beyond.pow(2).mean(), agent.actor_parameters(),
-                                materialize_grads=True)  # fmt: skip
+    grads = torch.autograd.grad(0.5 * beyond.pow(2).mean(), agent.actor_parameters(), materialize_grads=True)
     expected = torch.cat([g.flatten() for g in grads])
     assert expected.abs().max() > 1e-4  # the states beyond the bound pull
     torch.testing.assert_close(steps[0] - steps[1], expected)
@@ -608,11 +662,8 @@ def test_action_penalty_adds_the_gradient_of_l2_mean_mu_squared():
     for l2 in (0.0, 0.5):
         a = ipg_her_recipe.Agent(5, 2, hidden=32)
         a.load_state_dict(agent.state_dict())
-        args = ipg_her_recipe.Args(nu=1.0, action_l2=l2, num_minibatches=1, update_epochs=1,
-                            vf_coef=0.0, max_grad_norm=1e9)  # fmt: skip
-        ipg_her_recipe.ipg_update(a, torch.optim.SGD(a.parameters(), lr=1.0), b, 0.0, args, qf,
-                           replay_of(states))  # fmt: skip
+        args = ipg_her_recipe.Args(nu=1.0, action_l2=l2, num_minibatches=1, update_epochs=1, vf_coef=0.0, max_grad_norm=1e9)
+        ipg_her_recipe.ipg_update(a, torch.optim.SGD(a.parameters(), lr=1.0), b, 0.0, args, qf, replay_of(states))
         steps.append(torch.cat([p.detach().flatten() for p in a.actor_parameters()]))
-    grads = torch.autograd.grad(0.5 * agent.actor_mean(states).pow(2).mean(),
-                                agent.actor_parameters(), materialize_grads=True)  # fmt: skip
+    grads = torch.autograd.grad(0.5 * agent.actor_mean(states).pow(2).mean(), agent.actor_parameters(), materialize_grads=True)
     torch.testing.assert_close(steps[0] - steps[1], torch.cat([g.flatten() for g in grads]))

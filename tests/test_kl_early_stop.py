@@ -23,9 +23,7 @@ def epochs_run(module, kl_early_stop) -> int:
     torch.manual_seed(0)
     agent = module.Agent(5, 2)
     b = random_batch(64, 5, 2, agent)
-    flags = dict(
-        update_epochs=6, num_minibatches=2, learning_rate=1e-2, kl_early_stop=kl_early_stop
-    )
+    flags = dict(update_epochs=6, num_minibatches=2, learning_rate=1e-2, kl_early_stop=kl_early_stop)
     if module in (ipg_her, ipg_her_recipe):
         flags |= dict(nu=0.0, use_cv=False)
     optimizer = torch.optim.Adam(agent.parameters(), lr=1e-2)

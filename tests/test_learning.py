@@ -22,9 +22,7 @@ THRESHOLD = 0.8
 
 @pytest.mark.parametrize("seed", ["1", "2"])
 def test_ipg_her_learns_fetchreach(tmp_path, seed):
-    result = run_script(
-        "ipg_her.py", tmp_path, "--env-id", "FetchReach-v4", "--seed", seed, *BUDGET, timeout=300
-    )
+    result = run_script("ipg_her.py", tmp_path, "--env-id", "FetchReach-v4", "--seed", seed, *BUDGET, timeout=300)
     assert result.returncode == 0, result.stderr
     (run_dir,) = run_dirs(tmp_path)
     success = scalars(run_dir)["eval/success_rate"][-1][1]
@@ -36,9 +34,20 @@ def test_the_recipe_learns_a_goal_task_of_your_own(tmp_path):
     defaults, which it reads off the task as it does on every goal task. Measured: success 1.00 /
     0.94 / 1.00 / 1.00 on 50 episodes at 2,500 steps on seeds 1-4; with --no-her 0.00 on seeds 1-2
     (docs/your_goal_task.md)."""
-    result = run_script("ipg_her_recipe.py", tmp_path, "--env-id", "tests.point_goal:PointGoal-v0",
-                        "--total-timesteps", "2500", "--eval-freq", "0", "--eval-episodes", "20",
-                        "--save-model", timeout=300)  # fmt: skip
+    result = run_script(
+        "ipg_her_recipe.py",
+        tmp_path,
+        "--env-id",
+        "tests.point_goal:PointGoal-v0",
+        "--total-timesteps",
+        "2500",
+        "--eval-freq",
+        "0",
+        "--eval-episodes",
+        "20",
+        "--save-model",
+        timeout=300,
+    )
     assert result.returncode == 0, result.stderr
     assert "defaults for tests.point_goal:PointGoal-v0: --hidden 256," in result.stdout
     (run_dir,) = run_dirs(tmp_path)

@@ -42,9 +42,7 @@ PPO_TAGS = {
 def test_smoke_logs_tags_and_saved_model_evaluates(tmp_path, env_id, flags):
     tiny = "--num-minibatches 4 --update-epochs 2 --eval-freq 100 --eval-episodes 2 --save-model"
     run_dir, tags = smoke_run("ppo_kl.py", tmp_path, env_id, *flags, *tiny.split())
-    expected = PPO_TAGS | (
-        {"charts/success_rate", "eval/success_rate"} if env_id.startswith("Fetch") else set()
-    )
+    expected = PPO_TAGS | ({"charts/success_rate", "eval/success_rate"} if env_id.startswith("Fetch") else set())
     assert expected <= set(tags), expected - set(tags)
     assert len(tags["losses/beta"]) >= 2 and len(tags["eval/episodic_return"]) >= 2
 
@@ -66,19 +64,13 @@ def test_no_transition_crosses_a_reset_and_truncation_bootstraps_from_final_obs(
         ro["episode_ends"].bool(),
         ro["terminations"].bool(),
     )
-    assert terms.any() and (ends & ~terms).any(), (
-        "the rollout should hold both kinds of episode end"
-    )
+    assert terms.any() and (ends & ~terms).any(), "the rollout should hold both kinds of episode end"
     assert len(episodes) == int(ends.sum())
     nxt = torch.cat([obs[1:], torch.as_tensor(last_raw, dtype=torch.float32)[None]])
     # within an episode the next row is the same episode one step later
-    assert torch.equal(nxt[~ends][:, 0], obs[~ends][:, 0]) and torch.equal(
-        nxt[~ends][:, 1], obs[~ends][:, 1] + 1
-    )
+    assert torch.equal(nxt[~ends][:, 0], obs[~ends][:, 0]) and torch.equal(nxt[~ends][:, 1], obs[~ends][:, 1] + 1)
     # where an episode ended, final_obs is its true last observation, the next row a new episode
-    assert torch.equal(final_obs[ends][:, 0], obs[ends][:, 0]) and torch.equal(
-        final_obs[ends][:, 1], obs[ends][:, 1] + 1
-    )
+    assert torch.equal(final_obs[ends][:, 0], obs[ends][:, 0]) and torch.equal(final_obs[ends][:, 1], obs[ends][:, 1] + 1)
     assert torch.all(nxt[ends][:, 1] == 0) and torch.all(nxt[ends][:, 0] != obs[ends][:, 0])
     assert torch.all(final_obs[ends & ~terms][:, 1] == 5)  # truncated by the time limit
 
@@ -101,9 +93,25 @@ def test_same_seed_same_run_another_seed_another_run(tmp_path):
     """Two runs with the same seed log the same value of every scalar at every step (all but the
     wall-clock charts/SPS) and save the same networks and normaliser, bit for bit, over three
     updates and two evaluations; a run with another seed differs in its logs and its weights."""
-    flags = ("--env-id", "Hopper-v5", "--num-envs", "2", "--num-steps", "64",
-             "--total-timesteps", "384", "--num-minibatches", "2", "--update-epochs", "2",
-             "--eval-freq", "192", "--eval-episodes", "1", "--save-model")  # fmt: skip
+    flags = (
+        "--env-id",
+        "Hopper-v5",
+        "--num-envs",
+        "2",
+        "--num-steps",
+        "64",
+        "--total-timesteps",
+        "384",
+        "--num-minibatches",
+        "2",
+        "--update-epochs",
+        "2",
+        "--eval-freq",
+        "192",
+        "--eval-episodes",
+        "1",
+        "--save-model",
+    )
     runs = []
     for name, seed in (("a", "1"), ("b", "1"), ("c", "2")):
         result = run_script("ppo_kl.py", tmp_path / name, "--seed", seed, *flags)
@@ -115,8 +123,7 @@ def test_same_seed_same_run_another_seed_another_run(tmp_path):
     assert len(logs["losses/policy_loss"]) == 3 and len(logs["eval/episodic_return"]) == 2
     assert same_logs == logs  # every tag, every step, every value
     parts = ("agent", "normalizer", "last_eval_seeds")
-    leaves, same_leaves, other_leaves = (dict(flat_leaves({p: m[p] for p in parts}))
-                                         for m in (model, same_model, other_model))  # fmt: skip
+    leaves, same_leaves, other_leaves = (dict(flat_leaves({p: m[p] for p in parts})) for m in (model, same_model, other_model))
     assert leaves.keys() == same_leaves.keys() and len(leaves) > 13
     for key, value in leaves.items():
         assert torch.equal(torch.as_tensor(same_leaves[key]), torch.as_tensor(value)), key
@@ -147,20 +154,27 @@ def test_an_interrupted_run_keeps_its_logs_saves_its_model_and_names_its_resume_
     from conftest import ROOT, run_script
 
     same = ("--save-model", "--eval-episodes", "1", "--no-anneal-lr")  # resumed with the same
-    result = run_script("ppo_kl.py", tmp_path, "--total-timesteps", "2048", "--resume-freq", "2048",
-                        *same)  # fmt: skip
+    result = run_script("ppo_kl.py", tmp_path, "--total-timesteps", "2048", "--resume-freq", "2048", *same)
     assert result.returncode == 0, result.stderr
     (run_dir,) = run_dirs(tmp_path)
-    cmd = [sys.executable, str(ROOT / "ppo_kl.py"), "--log-dir", str(tmp_path), "--total-timesteps",
-           "1000000", "--resume-freq", "0", *same, "--resume", str(run_dir)]  # fmt: skip
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})  # fmt: skip
+    cmd = [
+        sys.executable,
+        str(ROOT / "ppo_kl.py"),
+        "--log-dir",
+        str(tmp_path),
+        "--total-timesteps",
+        "1000000",
+        "--resume-freq",
+        "0",
+        *same,
+        "--resume",
+        str(run_dir),
+    ]
+    proc = subprocess.Popen(
+        cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"}
+    )
     deadline = time.time() + 120
-    while (
-        proc.poll() is None
-        and time.time() < deadline
-        and scalars(run_dir)["losses/beta"][-1][0] <= 2048
-    ):
+    while proc.poll() is None and time.time() < deadline and scalars(run_dir)["losses/beta"][-1][0] <= 2048:
         time.sleep(1)
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=60)
@@ -182,10 +196,29 @@ def reset_seeds(monkeypatch, tmp_path, seed: int) -> list[int]:
             seen.append(seed)
         return original(self, seed=seed, options=options)
 
-    argv = ["ppo_kl.py", "--seed", str(seed), "--log-dir", str(tmp_path / str(seed)),
-            "--num-envs", "2", "--num-steps", "64", "--total-timesteps", "256",
-            "--num-minibatches", "2", "--update-epochs", "1", "--eval-freq", "128",
-            "--eval-episodes", "2", "--eval-workers", "0"]  # fmt: skip
+    argv = [
+        "ppo_kl.py",
+        "--seed",
+        str(seed),
+        "--log-dir",
+        str(tmp_path / str(seed)),
+        "--num-envs",
+        "2",
+        "--num-steps",
+        "64",
+        "--total-timesteps",
+        "256",
+        "--num-minibatches",
+        "2",
+        "--update-epochs",
+        "1",
+        "--eval-freq",
+        "128",
+        "--eval-episodes",
+        "2",
+        "--eval-workers",
+        "0",
+    ]
     with monkeypatch.context() as patch, pytest.raises(SystemExit) as exit_info:
         patch.setattr(gym.Env, "reset", recording_reset)
         patch.setattr(sys, "argv", argv)

@@ -44,9 +44,7 @@ def test_eta_mode_none_update_equals_ppo_kl_update():
     assert results[0][0] == results[1][0]
     for key, value in results[0][1].items():
         torch.testing.assert_close(results[1][1][key], value, rtol=0, atol=1e-7)
-    assert not torch.equal(results[0][1]["actor_logstd"], torch.zeros(1, 2)), (
-        "the update changed nothing"
-    )
+    assert not torch.equal(results[0][1]["actor_logstd"], torch.zeros(1, 2)), "the update changed nothing"
 
 
 def test_control_variate_has_zero_mean_under_the_policy():
@@ -101,17 +99,13 @@ def policy_gradient_estimates(agent, qf, eta_mode, batches=3000, n=32, seed=0):
             pi = agent.dist(s)
             a = pi.mean + pi.stddev * torch.randn(n, 1, generator=g)
             logprobs = pi.log_prob(a).sum(-1)
-            value = (
-                -((pi.mean - qf.k * s) ** 2).sum(-1) - pi.stddev[:, 0] ** 2
-            )  # exact V(s) = E_a[Q(s, a)]
+            value = -((pi.mean - qf.k * s) ** 2).sum(-1) - pi.stddev[:, 0] ** 2  # exact V(s) = E_a[Q(s, a)]
             adv = qf(s, a) - value  # A_hat, exact here
         cv = qprop_ppo.control_variate(qf, agent, s, a)
         eta = qprop_ppo.compute_eta(adv, cv, eta_mode)
         mb = {"obs": s, "actions": a, "logprobs": logprobs, "adv": adv - eta * cv, "eta": eta}
         loss = qprop_ppo.qprop_loss(agent, qf, agent.dist(s), mb)
-        grads = torch.autograd.grad(
-            -loss, [agent.actor_mean.bias, agent.actor_mean.weight, agent.actor_logstd]
-        )
+        grads = torch.autograd.grad(-loss, [agent.actor_mean.bias, agent.actor_mean.weight, agent.actor_logstd])
         estimates.append(torch.stack([gr.sum() for gr in grads]))
     return torch.stack(estimates)
 
@@ -199,8 +193,7 @@ def test_qprop_loss_weights_each_samples_analytic_term_by_its_eta(eta):
         qf.net[-1].bias.fill_(3.0)  # Q_w far from 0: the analytic term's sign shows in the value
     b = random_batch(n, 3, 2, agent)
     logprobs = b["logprobs"] + 0.2 * torch.randn(n, generator=torch.Generator().manual_seed(5))
-    mb = {"obs": b["obs"], "actions": b["actions"], "logprobs": logprobs,
-          "adv": b["advantages"], "eta": eta}  # fmt: skip
+    mb = {"obs": b["obs"], "actions": b["actions"], "logprobs": logprobs, "adv": b["advantages"], "eta": eta}
     params = agent.actor_parameters()
 
     def by_hand(eta):
@@ -214,8 +207,7 @@ def test_qprop_loss_weights_each_samples_analytic_term_by_its_eta(eta):
     loss = qprop_ppo.qprop_loss(agent, qf, agent.dist(b["obs"]), mb, scale)
     expected = by_hand(eta)
     torch.testing.assert_close(loss, expected)
-    grad, expected_grad = (torch.cat([g.flatten() for g in torch.autograd.grad(x, params)])
-                           for x in (loss, expected))  # fmt: skip
+    grad, expected_grad = (torch.cat([g.flatten() for g in torch.autograd.grad(x, params)]) for x in (loss, expected))
     torch.testing.assert_close(grad, expected_grad)
     # not vacuous: an analytic term weighted by 1 (eta ignored) is far from it
     unweighted = by_hand(torch.ones(n))
@@ -256,8 +248,7 @@ def test_normalization_modes(normalization):
     assert not torch.allclose(unbiased, paper, rtol=0.1)
     expected = unbiased if normalization == "unbiased" else paper
 
-    args = qprop_ppo.Args(num_minibatches=1, update_epochs=1, normalization=normalization,
-                          max_grad_norm=1e9, vf_coef=0.0)  # fmt: skip
+    args = qprop_ppo.Args(num_minibatches=1, update_epochs=1, normalization=normalization, max_grad_norm=1e9, vf_coef=0.0)
     before = torch.cat([p.detach().flatten() for p in params])
     qprop_ppo.qprop_update(agent, torch.optim.SGD(agent.parameters(), lr=1.0), b, 0.0, args, qf)
     after = torch.cat([p.detach().flatten() for p in agent.actor_parameters()])
@@ -315,8 +306,7 @@ def policy_after_one_update(c, eta_mode, normalization):
     q = ScaledQ(qf, 20.0 * c)  # a critic large enough that the analytic term matters
     b["cv"] = qprop_ppo.control_variate(q, agent, b["obs"], b["actions"])
     b["eta"] = qprop_ppo.compute_eta(b["advantages"], b["cv"], eta_mode)
-    args = qprop_ppo.Args(eta_mode=eta_mode, normalization=normalization, num_minibatches=2,
-                          update_epochs=2)  # fmt: skip
+    args = qprop_ppo.Args(eta_mode=eta_mode, normalization=normalization, num_minibatches=2, update_epochs=2)
     optimizer = torch.optim.Adam(agent.parameters(), lr=1e-3)
     torch.manual_seed(1)
     qprop_ppo.qprop_update(agent, optimizer, b, 1.0, args, q)

@@ -32,8 +32,12 @@ def test_every_linked_file_exists():
     assert not missing, f"the README links files that do not exist: {missing}"
 
 
-COMMANDS = [line.split("#")[0].strip() for block in bash_blocks() for line in block.splitlines()
-            if line.startswith("python ") and line.split()[1].endswith(".py")]  # fmt: skip
+COMMANDS = [
+    line.split("#")[0].strip()
+    for block in bash_blocks()
+    for line in block.splitlines()
+    if line.startswith("python ") and line.split()[1].endswith(".py")
+]
 
 
 @pytest.mark.parametrize("command", COMMANDS)

@@ -95,8 +95,7 @@ def test_a_resumed_run_reads_each_step_once_with_the_resumed_attempts_values(tmp
     second, pid 1000 after pid 999: the second file's name sorts first)."""
     for first, second in (("999", "1000"), ("1000", "999")):
         run_dir = tmp_path / first
-        for pid, purge_step, steps, offset in ((first, None, range(1, 11), 0),
-                                               (second, 6, range(6, 13), 100)):  # fmt: skip
+        for pid, purge_step, steps, offset in ((first, None, range(1, 11), 0), (second, 6, range(6, 13), 100)):
             writer = SummaryWriter(str(run_dir), purge_step=purge_step)
             for step in steps:
                 writer.add_scalar("charts/episodic_return", offset + step, step)
@@ -104,7 +103,8 @@ def test_a_resumed_run_reads_each_step_once_with_the_resumed_attempts_values(tmp
             (new,) = [p for p in run_dir.iterdir() if ".host." not in p.name]
             new.rename(run_dir / f"events.out.tfevents.1700000000.host.{pid}.0")
         assert events.read_run(run_dir)["charts/episodic_return"] == (
-            [[s, s] for s in range(1, 6)] + [[s, 100 + s] for s in range(6, 13)])  # fmt: skip
+            [[s, s] for s in range(1, 6)] + [[s, 100 + s] for s in range(6, 13)]
+        )
 
 
 def test_bootstrap_band_against_the_exact_bootstrap_distribution():
@@ -136,9 +136,18 @@ def test_page_without_file_or_markers_is_one_error_line(tmp_path, content):
     page = tmp_path / "results.md"
     if content is not None:
         page.write_text(content)
-    cmd = [sys.executable, "benchmarks/report.py", "--suite", "quick", "--runs-dir",
-           str(tmp_path / "runs"), "--results-dir", str(tmp_path / "out"),
-           "--page", str(page)]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "benchmarks/report.py",
+        "--suite",
+        "quick",
+        "--runs-dir",
+        str(tmp_path / "runs"),
+        "--results-dir",
+        str(tmp_path / "out"),
+        "--page",
+        str(page),
+    ]
     result = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     errors = [line for line in result.stderr.splitlines() if line.startswith("error:")]
@@ -188,8 +197,7 @@ def test_rows_merged_from_an_earlier_export_are_marked(tmp_path):
     folders = {"runs_dir": str(tmp_path / "old_runs"), "results_dir": str(tmp_path / "old")}
     assert report.main(report_args(tmp_path, "paper", **folders)) == 0
     write_run(new, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [1.0, 1.0])
-    args = report_args(tmp_path, "paper", merge_export=str(tmp_path / "old" / "curves.json"),
-                       merge_label="commit abc")  # fmt: skip
+    args = report_args(tmp_path, "paper", merge_export=str(tmp_path / "old" / "curves.json"), merge_label="commit abc")
     assert report.main(args) == 0
     text = (tmp_path / "results" / "results.md").read_text()
     assert "| Hopper-v5 | algo † | 1 |" in text and "† measured on commit abc" in text
@@ -243,14 +251,15 @@ def test_unfinished_runs_are_left_out_or_marked_with_the_step_they_reached(tmp_p
     push = suites.SUITES["push"]
     budgets = dataclasses.replace(push.report, budgets=(500, 1000, 1500))
     monkeypatch.setitem(suites.SUITES, "push", push._replace(report=budgets))
-    short = next(line for line in results(include_unfinished=True).splitlines()
-                 if line.startswith("| FetchReach-v4 | short | 0"))  # fmt: skip
+    short = next(
+        line for line in results(include_unfinished=True).splitlines() if line.startswith("| FetchReach-v4 | short | 0")
+    )
     assert short.split(" | ")[2:] == ["0.00 [0.00, 0.00]", "0.40 [0.40, 0.40]", "- |"]
-    row = next(line for line in results(include_unfinished=True).splitlines()
-               if line.startswith("| FetchReach-v4 | IPG+HER | 0"))  # fmt: skip
+    row = next(
+        line for line in results(include_unfinished=True).splitlines() if line.startswith("| FetchReach-v4 | IPG+HER | 0")
+    )
     # at 500 and 1,000 both seeds (0.0 and 0.0; 0.5 and 0.2), at 1,500 seed 1 alone (1.0)
-    assert row.split(" | ")[2:] == ["0.00 [0.00, 0.00]", "0.35 [0.20, 0.50]",
-                                    "1.00 [1.00, 1.00] (1 of 2 seeds) |"]  # fmt: skip
+    assert row.split(" | ")[2:] == ["0.00 [0.00, 0.00]", "0.35 [0.20, 0.50]", "1.00 [1.00, 1.00] (1 of 2 seeds) |"]
 
 
 def test_diagnostics_table_against_hand_computed_medians():
@@ -274,8 +283,7 @@ def test_diagnostics_table_against_hand_computed_medians():
     assert len(rows) == 3, "a header, a separator and one row: ppo_kl logged no diagnostics"
     # effective nu: run medians 0.2 and 0.4; ratio: 2 and 1; corr: 0.5 and 0.2
     assert rows[2] == (
-        "| FetchReach-v4 | ipg_her_nu0.5_b100 | 2 | 0.30 [0.20, 0.40] | 1.50 [1.00, 2.00] "
-        "| 0.35 [0.20, 0.50] |"
+        "| FetchReach-v4 | ipg_her_nu0.5_b100 | 2 | 0.30 [0.20, 0.40] | 1.50 [1.00, 2.00] | 0.35 [0.20, 0.50] |"
     )
     assert tables.diagnostics_table({"ppo_kl__Hopper-v5": groups["ppo_kl__FetchReach-v4"]}) == ""
 
@@ -297,8 +305,7 @@ def test_reach_table_gives_steps_and_training_hours_per_seed(tmp_path):
     assert np.isnan(stats.first_eval_at(run, 0.95)[0])
     row = tables.reach_table(groups, (0.5, 0.9)).splitlines()[2]
     # seed 2 and 3 log SPS 1000 at step 1,500: 1.5 s = 0.0 h
-    assert row.split(" | ")[2:] == ["1,000 (0.0) / 1,500 (0.0) / never", "1,500",
-                                    "1,500 (0.0) / not yet / never", "- |"]  # fmt: skip
+    assert row.split(" | ")[2:] == ["1,000 (0.0) / 1,500 (0.0) / never", "1,500", "1,500 (0.0) / not yet / never", "- |"]
 
 
 def test_finalists_table_reads_fresh_seeds_only_with_bootstrap_intervals(tmp_path):
@@ -306,9 +313,7 @@ def test_finalists_table_reads_fresh_seeds_only_with_bootstrap_intervals(tmp_pat
     95% bootstrap interval of the mean lies within the seeds' range (equal values: a point)."""
     runs = tmp_path / "runs" / "mixing"
     for seed, success in ((1, 0.0), (2, 0.0), (11, 0.4), (12, 0.6), (13, 0.8)):
-        write_run(
-            runs, "ipg_her_nu0.8_b100", "FetchReach-v4", seed, [-50] * 15, [0.2] * 5 + [success]
-        )
+        write_run(runs, "ipg_her_nu0.8_b100", "FetchReach-v4", seed, [-50] * 15, [0.2] * 5 + [success])
     write_run(runs, "ipg_her_nu1.0_b100", "FetchReach-v4", 11, [-50] * 15, [1.0, 1.0])
     groups = events.collect(runs, WINDOW)
     rows = tables.finalists_table(groups, np.random.default_rng(0), 11).splitlines()
@@ -359,8 +364,7 @@ def test_fetch_figures_draw_the_median_seed_and_the_band_from_lowest_to_highest(
     import matplotlib.pyplot as plt
 
     ends = {1: 0.0, 2: 0.2, 3: 1.0}
-    groups = {"ipg_her__FetchPush-v4": {s: {"eval/success_rate": [[0, 0.0], [10, v]]}
-                                        for s, v in ends.items()}}  # fmt: skip
+    groups = {"ipg_her__FetchPush-v4": {s: {"eval/success_rate": [[0, 0.0], [10, v]]} for s, v in ends.items()}}
     fig, ax = plt.subplots()
     figures.plot(ax, groups, ["ipg_her"], "FetchPush-v4", "eval/success_rate", None, median=True)
     assert ax.lines[0].get_ydata()[-1] == pytest.approx(0.2)
@@ -399,8 +403,7 @@ def test_iqm_interval_against_the_exact_bootstrap_distribution():
     point, lo, hi = stats.bootstrap_interval([7.0], stats.iqm, np.random.default_rng(0))
     assert point == 7.0 and np.isnan(lo) and np.isnan(hi)  # one seed: no interval
     finals = [0.0, 100.0, 500.0, 600.0, 10000.0]
-    groups = {"algo__Hopper-v5": {str(s): {"eval/episodic_return": [[1000, v]]}
-                                  for s, v in enumerate(finals)}}  # fmt: skip
+    groups = {"algo__Hopper-v5": {str(s): {"eval/episodic_return": [[1000, v]]} for s, v in enumerate(finals)}}
     row = tables.task_tables(groups, {}, 0).splitlines()[4]
     median, iqm = row.split(" | ")[2:4]
     assert median.startswith("500 [") and iqm.startswith("400 [")  # (100 + 500 + 600) / 3
@@ -413,33 +416,40 @@ def test_time_to_threshold_is_each_seeds_step_over_the_sps_it_logged_there():
     """Per level: the median over all seeds of the first evaluation's step, and of each seed's
     own training time to it (its step over the charts/SPS logged at that step, not its final
     rate); a seed that never got there counts as never."""
-    groups = {"ipg_her__FetchPush-v4": {
-        # 0.5 at 2,000 steps, logged at 50 steps/s: 40 s; 0.7 and 0.9 at 3,000 (SPS 100): 30 s
-        "1": {"eval/success_rate": [[1000, 0.2], [2000, 0.6], [3000, 0.95]],
-              "charts/SPS": [[1000, 100], [2000, 50], [3000, 100]]},
-        # 0.5 at 1,000 steps at 20 steps/s: 50 s; 0.7 at 2,000 (SPS 40): 50 s; 0.9 never
-        "2": {"eval/success_rate": [[1000, 0.5], [2000, 0.7], [3000, 0.8]],
-              "charts/SPS": [[1000, 20], [2000, 40], [3000, 1000]]},
-        "3": {"eval/success_rate": [[1000, 0.1], [2000, 0.1], [3000, 0.1]],  # never
-              "charts/SPS": [[1000, 10], [2000, 10], [3000, 10]]},
-    }}  # fmt: skip
+    groups = {
+        "ipg_her__FetchPush-v4": {
+            # 0.5 at 2,000 steps, logged at 50 steps/s: 40 s; 0.7 and 0.9 at 3,000 (SPS 100): 30 s
+            "1": {
+                "eval/success_rate": [[1000, 0.2], [2000, 0.6], [3000, 0.95]],
+                "charts/SPS": [[1000, 100], [2000, 50], [3000, 100]],
+            },
+            # 0.5 at 1,000 steps at 20 steps/s: 50 s; 0.7 at 2,000 (SPS 40): 50 s; 0.9 never
+            "2": {
+                "eval/success_rate": [[1000, 0.5], [2000, 0.7], [3000, 0.8]],
+                "charts/SPS": [[1000, 20], [2000, 40], [3000, 1000]],
+            },
+            "3": {
+                "eval/success_rate": [[1000, 0.1], [2000, 0.1], [3000, 0.1]],  # never
+                "charts/SPS": [[1000, 10], [2000, 10], [3000, 10]],
+            },
+        }
+    }
     assert stats.first_eval_at(groups["ipg_her__FetchPush-v4"]["1"], 0.5) == (2000, 40.0)
     lines = tables.task_tables(groups, {}, 0).splitlines()
-    assert lines[0] == "**FetchPush-v4** (levels: evaluation success 0.5 / 0.7 / 0.9; " \
-        "no anchor recorded for this task)"  # fmt: skip
+    assert lines[0] == "**FetchPush-v4** (levels: evaluation success 0.5 / 0.7 / 0.9; no anchor recorded for this task)"
     cells = lines[4].strip(" |").split(" | ")
     # medians of (2,000, 1,000, never) and (40 s, 50 s, never); of (3,000, 2,000, never) and
     # (30 s, 50 s, never); of (3,000, never, never): never
-    assert cells[4:12] == ["2,000 (2/3)", "50 s", "3,000 (2/3)", "50 s",
-                           "not reached (1/3)", "-", "1,000", "370"]  # fmt: skip
-    hopper = {"qprop__Hopper-v5": {"1": {"eval/episodic_return": [[100, 900.0], [200, 2500.0]],
-                                         "charts/SPS": [[100, 10], [200, 10]]}}}  # fmt: skip
+    assert cells[4:12] == ["2,000 (2/3)", "50 s", "3,000 (2/3)", "50 s", "not reached (1/3)", "-", "1,000", "370"]
+    hopper = {
+        "qprop__Hopper-v5": {
+            "1": {"eval/episodic_return": [[100, 900.0], [200, 2500.0]], "charts/SPS": [[100, 10], [200, 10]]}
+        }
+    }
     lines = tables.task_tables(hopper, {}, 0).splitlines()
     assert "first eval >= 1000:" in lines[2] and "first eval >= 3000:" in lines[2]
-    assert lines[4].split(" | ")[4:10] == ["200 (1/1)", "20 s", "200 (1/1)", "20 s",
-                                           "not reached (0/1)", "-"]  # fmt: skip
-    assert [tables.duration(s) for s in (3.25, 45, 1020, 9000, np.inf)] == \
-        ["3.2 s", "45 s", "17 min", "2.5 h", "-"]  # fmt: skip
+    assert lines[4].split(" | ")[4:10] == ["200 (1/1)", "20 s", "200 (1/1)", "20 s", "not reached (0/1)", "-"]
+    assert [tables.duration(s) for s in (3.25, 45, 1020, 9000, np.inf)] == ["3.2 s", "45 s", "17 min", "2.5 h", "-"]
     # Hopper's PPO-KL: every 100,352 steps, then once more at the end of its 300k
     assert tables.eval_every([[[100_352, 0], [200_704, 0], [299_008, 0]]] * 2) == "100,352"
     assert tables.eval_every([[[500, 0], [1000, 0]], [[25_600, 0], [51_200, 0]]]) == "500-25,600"
@@ -451,8 +461,7 @@ def test_a_level_never_reached_by_half_the_seeds_or_more_is_not_reached():
     steps = [1000.0, 2000.0, np.nan, np.nan]
     assert tables.reach_cells(steps, [10.0, 20.0, np.nan, np.nan]) == ("not reached (2/4)", "-")
     assert tables.reach_cells(steps[:3], [10.0, 20.0, np.nan]) == ("2,000 (2/3)", "20 s")
-    assert tables.reach_cells([np.nan] * 3, [np.nan] * 3, running=1) == (
-        "not reached (0/3; 1 still running)", "-")  # fmt: skip
+    assert tables.reach_cells([np.nan] * 3, [np.nan] * 3, running=1) == ("not reached (0/3; 1 still running)", "-")
     assert tables.reach_cells([1000.0], None) == ("1,000 (1/1)", "n/a")  # time not recorded
     assert tables.reach_cells([1000.0], [np.nan]) == ("1,000 (1/1)", "n/a")  # no SPS logged
 
@@ -460,15 +469,16 @@ def test_a_level_never_reached_by_half_the_seeds_or_more_is_not_reached():
 def write_side_by_side(path):
     """An against_sb3.py results.json: two seeds of each, SB3's first at 0.9 at 1,000 and 1,500
     steps."""
-    sb3 = [[[0, 0.0], [500, 0.2], [1000, 1.0], [1500, 1.0]],
-           [[0, 0.0], [500, 0.6], [1000, 0.8], [1500, 0.9]]]  # fmt: skip
+    sb3 = [[[0, 0.0], [500, 0.2], [1000, 1.0], [1500, 1.0]], [[0, 0.0], [500, 0.6], [1000, 0.8], [1500, 0.9]]]
     data = {
         "seeds": [21, 22],
         "steps": 1500,
-        "sb3_ddpg_her": [{"steps_to_0.9": s, "train_s_to_0.9": t, "success": c}
-                         for s, t, c in zip((1000, 1500), (6.0, 8.0), sb3, strict=True)],
+        "sb3_ddpg_her": [
+            {"steps_to_0.9": s, "train_s_to_0.9": t, "success": c}
+            for s, t, c in zip((1000, 1500), (6.0, 8.0), sb3, strict=True)
+        ],
         "ipg_her": [{"steps_to_0.9": 500, "train_s_to_0.9": 1.0, "success": [[500, 1.0]]}] * 2,
-    }  # fmt: skip
+    }
     path.write_text(json.dumps(data))
     return sb3
 
@@ -502,16 +512,24 @@ def test_the_anchor_is_drawn_in_and_given_its_row(tmp_path, monkeypatch):
     monkeypatch.setattr(figures, "draw_anchors", lambda ax, p, **kw: drawn.append((p, kw)))
     runs = tmp_path / "runs" / "quick"
     write_run(runs, "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
-    assert (
-        report.main(report_args(tmp_path, "quick", side_by_side=str(tmp_path / "side.json"))) == 0
-    )
+    assert report.main(report_args(tmp_path, "quick", side_by_side=str(tmp_path / "side.json"))) == 0
     assert drawn == [(found["FetchReach-v4"], {"per_episode": True})]  # the success figure
     text = (tmp_path / "results" / "results.md").read_text()
     row = next(line for line in text.splitlines() if line.startswith("| SB3 DDPG+HER"))
     # finals 1.0 and 0.9; 0.5 first at 1,000 / 500, 0.7 at 1,000 / 1,000, 0.9 at 1,000 / 1,500
-    assert row.split(" | ")[1:] == ["2 (21-22)", "0.95 [0.90, 1.00]", "0.95 [0.90, 1.00]",
-                                    "750 (2/2)", "n/a", "1,000 (2/2)", "n/a", "1,250 (2/2)",
-                                    "7.0 s", "500", "n/a |"]  # fmt: skip
+    assert row.split(" | ")[1:] == [
+        "2 (21-22)",
+        "0.95 [0.90, 1.00]",
+        "0.95 [0.90, 1.00]",
+        "750 (2/2)",
+        "n/a",
+        "1,000 (2/2)",
+        "n/a",
+        "1,250 (2/2)",
+        "7.0 s",
+        "500",
+        "n/a |",
+    ]
     assert "anchor: SB3 DDPG+HER)" in text and "*SB3 DDPG+HER (anchor)*" in text
 
 
@@ -530,16 +548,21 @@ def test_an_anchor_run_here_gets_its_row_its_times_and_its_speed(tmp_path, monke
     last evaluation, the steps and training seconds (wall time less every evaluation so far) to
     each level, and the mean steps/s; the task's figure draws it in. A seed the suite did not run
     the task on (303) is left out: the anchor is compared on the same seeds."""
-    evals = {301: [(0, 0.0, 1.0, 1.0), (1000, 0.6, 5.0, 1.0), (2000, 1.0, 9.0, 1.0)],
-             302: [(0, 0.0, 2.0, 2.0), (1000, 0.2, 8.0, 2.0), (2000, 0.8, 14.0, 2.0)],
-             303: [(0, 0.0, 2.0, 2.0), (1000, 0.0, 8.0, 2.0), (2000, 0.0, 14.0, 2.0)]}  # fmt: skip
+    evals = {
+        301: [(0, 0.0, 1.0, 1.0), (1000, 0.6, 5.0, 1.0), (2000, 1.0, 9.0, 1.0)],
+        302: [(0, 0.0, 2.0, 2.0), (1000, 0.2, 8.0, 2.0), (2000, 0.8, 14.0, 2.0)],
+        303: [(0, 0.0, 2.0, 2.0), (1000, 0.0, 8.0, 2.0), (2000, 0.0, 14.0, 2.0)],
+    }
     for seed, records in evals.items():
         folder = tmp_path / "anchors" / f"sac_her__HandReach-v3__seed{seed}"
         folder.mkdir(parents=True)
-        summary = {"algo": "sac_her", "env": "HandReach-v3", "seed": seed,
-                   "train_steps_per_s": 100.0 * (seed - 300),
-                   "evals": [{"step": s, "eval_success": v, "wall_s": w, "eval_s": e}
-                             for s, v, w, e in records]}  # fmt: skip
+        summary = {
+            "algo": "sac_her",
+            "env": "HandReach-v3",
+            "seed": seed,
+            "train_steps_per_s": 100.0 * (seed - 300),
+            "evals": [{"step": s, "eval_success": v, "wall_s": w, "eval_s": e} for s, v, w, e in records],
+        }
         (folder / "summary.json").write_text(json.dumps(summary))
     seeds = {"HandReach-v3": {301, 302}, "FetchPush-v4": {303}}
     (anchor,) = peers.load_anchor_runs(tmp_path / "anchors", seeds)["HandReach-v3"]
@@ -560,16 +583,25 @@ def test_an_anchor_run_here_gets_its_row_its_times_and_its_speed(tmp_path, monke
     text = (tmp_path / "results" / "results.md").read_text()
     row = next(line for line in text.splitlines() if line.startswith("| SB3 SAC+HER"))
     # finals 1.0 and 0.8; 0.9: 2,000 and never, so the median is never
-    assert row.split(" | ")[1:] == ["2 (301-302)", "0.90 [0.80, 1.00]", "0.90 [0.80, 1.00]",
-                                    "1,500 (2/2)", "5.5 s", "2,000 (2/2)", "7.0 s",
-                                    "not reached (1/2)", "-", "1,000", "150 |"]  # fmt: skip
+    assert row.split(" | ")[1:] == [
+        "2 (301-302)",
+        "0.90 [0.80, 1.00]",
+        "0.90 [0.80, 1.00]",
+        "1,500 (2/2)",
+        "5.5 s",
+        "2,000 (2/2)",
+        "7.0 s",
+        "not reached (1/2)",
+        "-",
+        "1,000",
+        "150 |",
+    ]
     assert "anchor: SB3 SAC+HER)" in text and "(anchor; zoo settings)*" in text
 
 
 def test_every_goal_task_is_reported_by_its_success():
     """The goals suite's tasks, like Fetch's: evaluation success at 0.5 / 0.7 / 0.9."""
-    for env_id in ("FetchPush-v4", "HandReach-v3", "HandManipulateBlockRotateZ-v1",
-                   "PointMaze_Medium-v3"):  # fmt: skip
+    for env_id in ("FetchPush-v4", "HandReach-v3", "HandManipulateBlockRotateZ-v1", "PointMaze_Medium-v3"):
         assert stats.task_levels(env_id) == stats.GOAL_LEVELS
         assert stats.THRESHOLDS[env_id][0] == "eval/success_rate"
     assert stats.task_levels("Hopper-v5")[0] == "eval/episodic_return"
@@ -581,9 +613,10 @@ def test_the_paired_comparison_matches_its_definition():
     four differences of one sign give p = 2 / 2^4 (all signs kept, or all flipped)."""
     from benchmarks import paired
 
-    export = {"a": {str(s): {"final": f} for s, f in ((1, 10.0), (2, 20.0), (3, 30.0), (4, 5.0))},
-              "b": {str(s): {"final": f} for s, f in ((1, 12.0), (2, 21.0), (3, 33.0), (4, 9.0),
-                                                      (5, 0.0))}}  # fmt: skip
+    export = {
+        "a": {str(s): {"final": f} for s, f in ((1, 10.0), (2, 20.0), (3, 30.0), (4, 5.0))},
+        "b": {str(s): {"final": f} for s, f in ((1, 12.0), (2, 21.0), (3, 33.0), (4, 9.0), (5, 0.0))},
+    }
     r = paired.paired(export, "a", "b")
     assert r["seeds"] == ["1", "2", "3", "4"]
     assert r["difference"].tolist() == [-2.0, -1.0, -3.0, -4.0] and r["mean"] == -2.5
@@ -605,9 +638,18 @@ def test_a_report_with_no_runs_refuses_and_leaves_the_export_as_it_is(tmp_path):
     assert {tmp_path / "results" / f for f in ("curves.json", "results.md")} <= set(before)
     assert tmp_path / "img" / "fig5_fetchreach_success.png" in before
     (tmp_path / "empty" / "paper").mkdir(parents=True)
-    cmd = [sys.executable, "benchmarks/report.py", "--suite", "paper", "--runs-dir",
-           str(tmp_path / "empty"), "--results-dir", str(tmp_path / "results"),
-           "--figures-dir", str(tmp_path / "img")]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "benchmarks/report.py",
+        "--suite",
+        "paper",
+        "--runs-dir",
+        str(tmp_path / "empty"),
+        "--results-dir",
+        str(tmp_path / "results"),
+        "--figures-dir",
+        str(tmp_path / "img"),
+    ]
     result = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert_clean_error(result, "no finished run", str(tmp_path / "empty" / "paper"))
     assert snapshot(tmp_path) == before
@@ -675,9 +717,7 @@ def test_a_suites_report_settings_are_its_entry_in_suites_py_not_branches_on_its
         write_run(tmp_path / "runs" / suite, "ipg_her", "FetchPush-v4", 1, [-50] * 3, [0.0, 0.6])
         args = report_args(tmp_path, suite, results_dir=str(tmp_path / suite))
         assert report.main(args) == 0
-        reach[suite] = (
-            "steps (training h) per seed" in (tmp_path / suite / "results.md").read_text()
-        )
+        reach[suite] = "steps (training h) per seed" in (tmp_path / suite / "results.md").read_text()
     assert reach == {"goals": False, "fetch": True}
     assert suites.SUITES["goals"].report.levels == () and suites.SUITES["fetch"].report.levels
 
@@ -709,9 +749,7 @@ def test_every_run_folder_left_out_is_named_with_why(tmp_path, capsys):
     (runs / "notes.txt").write_text("not a run folder")
     capsys.readouterr()
     sleep = "import time; print(flush=True); time.sleep(60)"
-    with subprocess.Popen(
-        [sys.executable, "-c", sleep, running.name], stdout=subprocess.PIPE
-    ) as sleeper:
+    with subprocess.Popen([sys.executable, "-c", sleep, running.name], stdout=subprocess.PIPE) as sleeper:
         sleeper.stdout.readline()  # started: its command line is its own
         (running / "pid").write_text(f"{sleeper.pid}\n")
         try:
@@ -741,9 +779,7 @@ def the_error_line(capsys) -> str:
 
 @pytest.mark.parametrize("content", ["[]", "3", '{"ppo_kl__Hopper-v5": [1, 2]}', '{"a": {}}'])
 @pytest.mark.parametrize("from_export", [False, True])
-def test_an_export_of_another_shape_is_one_error_line_and_nothing_is_written(
-    tmp_path, capsys, content, from_export
-):
+def test_an_export_of_another_shape_is_one_error_line_and_nothing_is_written(tmp_path, capsys, content, from_export):
     """An export that is JSON but not an object of groups of runs, read to redraw or to be
     replaced: one error line naming it, and nothing written."""
     write_run(tmp_path / "runs" / "quick", "ipg_her", "FetchReach-v4", 1, [-50] * 3, [0.0, 1.0])
@@ -765,9 +801,7 @@ def test_an_export_of_another_shape_is_one_error_line_and_nothing_is_written(
         ({"window": -5}, "--window -5:"),
     ],
 )
-def test_a_bad_merge_export_or_window_is_one_error_line_before_anything_is_written(
-    tmp_path, capsys, flags, needle
-):
+def test_a_bad_merge_export_or_window_is_one_error_line_before_anything_is_written(tmp_path, capsys, flags, needle):
     """--merge-export naming no file or no export, --window 0 or below (Hopper's windowed return
     would be a traceback): one error line naming it, and nothing written."""
     write_run(tmp_path / "runs" / "quick", "ppo_kl", "Hopper-v5", 1, [100.0] * 10)
@@ -813,9 +847,7 @@ def test_an_export_is_redrawn_only_over_the_window_its_runs_were_read_with(tmp_p
 
 
 @pytest.mark.parametrize("earlier", ["keep_export", "merge_export"])
-def test_runs_kept_or_merged_from_an_export_read_with_another_window_are_refused(
-    tmp_path, capsys, earlier
-):
+def test_runs_kept_or_merged_from_an_export_read_with_another_window_are_refused(tmp_path, capsys, earlier):
     """Runs kept from the suite's export (--keep-export) or merged from an earlier one
     (--merge-export) keep the final return of the window they were read with: beside runs read
     now over another --window, one table would state one window over both. One error line, and
@@ -886,9 +918,7 @@ def test_a_folder_it_cannot_write_in_is_one_error_line_and_no_file_changes(tmp_p
     assert snapshot(tmp_path) == before
 
 
-def test_a_full_disk_between_the_export_and_results_md_changes_no_file(
-    tmp_path, monkeypatch, capsys
-):
+def test_a_full_disk_between_the_export_and_results_md_changes_no_file(tmp_path, monkeypatch, capsys):
     """The disk fills up (ENOSPC) when results.md is written, after the export: one error line
     saying so, and the export, results.md, the figures and --page as they were, no temporary
     left."""

@@ -7,27 +7,42 @@ from conftest import run_dirs, run_script, scalars
 
 CASES = {
     # goal task: replay, hindsight relabelling, the critic; 25 steps of 50-step episodes a rollout
-    "ipg_her": ("FetchReach-v4", ["--num-steps", "25", "--critic-steps", "4", "--hidden", "16",
-                                  "--eval-freq", "150", "--eval-episodes", "2"], 150),
+    "ipg_her": (
+        "FetchReach-v4",
+        ["--num-steps", "25", "--critic-steps", "4", "--hidden", "16", "--eval-freq", "150", "--eval-episodes", "2"],
+        150,
+    ),
     # vector task: Hopper's episodes cross the resume point; reward scaling, the beta rule
-    "ppo_kl": ("Hopper-v5", ["--num-steps", "64", "--num-minibatches", "2", "--update-epochs",
-                             "2", "--no-anneal-lr", "--eval-freq", "256", "--eval-episodes",
-                             "2"], 256),
-}  # fmt: skip
+    "ppo_kl": (
+        "Hopper-v5",
+        [
+            "--num-steps",
+            "64",
+            "--num-minibatches",
+            "2",
+            "--update-epochs",
+            "2",
+            "--no-anneal-lr",
+            "--eval-freq",
+            "256",
+            "--eval-episodes",
+            "2",
+        ],
+        256,
+    ),
+}
 
 
 @pytest.mark.parametrize("script", CASES)
 def test_a_resumed_run_equals_the_run_that_never_stopped(tmp_path, script):
     env_id, flags, half = CASES[script]
-    flags = [f"{script}.py", "--env-id", env_id, "--num-envs", "2", "--eval-workers", "0",
-             "--resume-freq", str(half), *flags]  # fmt: skip
+    flags = [f"{script}.py", "--env-id", env_id, "--num-envs", "2", "--eval-workers", "0", "--resume-freq", str(half), *flags]
     runs = {}
     for name, budgets in (("whole", [2 * half]), ("resumed", [half, 2 * half])):
         log_dir = tmp_path / name
         for i, budget in enumerate(budgets):
             resume = ["--resume", str(run_dirs(log_dir)[0])] if i else []
-            result = run_script(*flags[:1], log_dir, *flags[1:], "--total-timesteps",
-                                str(budget), *resume)  # fmt: skip
+            result = run_script(*flags[:1], log_dir, *flags[1:], "--total-timesteps", str(budget), *resume)
             assert result.returncode == 0, result.stderr
         (run_dir,) = run_dirs(log_dir)
         runs[name] = {tag: v for tag, v in scalars(run_dir).items() if tag != "charts/SPS"}
@@ -53,9 +68,14 @@ def vector_env(env_id: str, grasped: float = 0.0):
 
 @pytest.mark.parametrize(
     "env_id, grasped",
-    [("Hopper-v5", 0.0), ("FetchReach-v4", 0.0), ("tests.point_goal:PointGoal-v0", 0.0),
-     ("FetchPickAndPlace-v4", 0.0), ("FetchPickAndPlace-v4", 0.5)],
-)  # fmt: skip
+    [
+        ("Hopper-v5", 0.0),
+        ("FetchReach-v4", 0.0),
+        ("tests.point_goal:PointGoal-v0", 0.0),
+        ("FetchPickAndPlace-v4", 0.0),
+        ("FetchPickAndPlace-v4", 0.5),
+    ],
+)
 def test_environments_restored_in_a_new_process_go_on_as_the_originals(env_id, grasped):
     """``EnvsState`` through a file, into freshly made envs (as in a resumed process): the same
     actions give the same observations, rewards and ends, across episode ends and resets."""

@@ -15,8 +15,7 @@ from test_evaluate import osmesa_available
 pytest.importorskip("wandb")
 from wandb.proto import wandb_internal_pb2  # noqa: E402
 
-TINY = ("--env-id", "FetchReach-v4", "--total-timesteps", "200", "--eval-freq", "0",
-        "--eval-episodes", "2")  # fmt: skip
+TINY = ("--env-id", "FetchReach-v4", "--total-timesteps", "200", "--eval-freq", "0", "--eval-episodes", "2")
 
 
 def tracked(log_dir: Path, *flags: str, mode: str | None = "offline", **env):
@@ -154,7 +153,7 @@ def test_a_wandb_flag_without_track_is_refused(tmp_path, flag):
                 "WANDB_API_KEY": "a" * 40,
                 "WANDB_BASE_URL": "http://127.0.0.1:9",
                 "WANDB_INIT_TIMEOUT": "5",
-            },  # fmt: skip
+            },
             "W&B did not start",
         ),
     ],
@@ -169,10 +168,8 @@ def test_a_w_and_b_failure_is_one_line_and_the_run_goes_on(tmp_path, online_env,
 
 def test_ctrl_c_ends_a_tracked_run_as_an_untracked_one(tmp_path):
     env = {**os.environ, "OMP_NUM_THREADS": "1", "WANDB_MODE": "offline", "HOME": str(tmp_path)}
-    cmd = [sys.executable, str(ROOT / "ipg_her.py"), "--log-dir", str(tmp_path / "runs"),
-           "--track", *TINY[:3], "100000"]  # fmt: skip
-    proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)  # fmt: skip
+    cmd = [sys.executable, str(ROOT / "ipg_her.py"), "--log-dir", str(tmp_path / "runs"), "--track", *TINY[:3], "100000"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 120
     while not list((tmp_path / "runs").glob("*__*/events.out.tfevents*")):
         assert time.time() < deadline and proc.poll() is None, proc.communicate()

@@ -38,9 +38,7 @@ def test_a_nan_in_the_bounds_is_still_refused():
         ("GridActions-v0", ("actions have shape (2, 1)", "vectors")),
     ],
 )
-def test_a_task_the_scripts_cannot_drive_is_one_line_before_any_run_folder(
-    tmp_path, env_id, needles
-):
+def test_a_task_the_scripts_cannot_drive_is_one_line_before_any_run_folder(tmp_path, env_id, needles):
     result = run_script("ipg_her.py", tmp_path / "runs", "--env-id", f"tests.odd_tasks:{env_id}")
     assert_clean_error(result, *needles)
     assert not (tmp_path / "runs").exists()

@@ -35,9 +35,7 @@ class CountingGoalEnv(CountingEnv):
     def __init__(self, limit: int = 5):
         super().__init__(limit)
         box = gym.spaces.Box(-np.inf, np.inf, (2,), np.float64)
-        self.observation_space = gym.spaces.Dict(
-            {"observation": box, "achieved_goal": box, "desired_goal": box}
-        )
+        self.observation_space = gym.spaces.Dict({"observation": box, "achieved_goal": box, "desired_goal": box})
 
     def _obs(self):
         now = super()._obs()

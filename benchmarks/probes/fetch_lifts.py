@@ -53,8 +53,10 @@ def policy_by_goal(policy: Policy, env_id: str, seeds: range) -> dict:
         rows.append((in_air, info["is_success"], held(np.array([heights]))[0]))
     env.close()
     r = np.array(rows, float)
-    return {where: {"episodes": int(m.sum()), "success": r[m, 1].mean(), "held": r[m, 2].mean()}
-            for where, m in (("table", r[:, 0] == 0), ("air", r[:, 0] == 1))}  # fmt: skip
+    return {
+        where: {"episodes": int(m.sum()), "success": r[m, 1].mean(), "held": r[m, 2].mean()}
+        for where, m in (("table", r[:, 0] == 0), ("air", r[:, 0] == 1))
+    }
 
 
 if __name__ == "__main__":
@@ -69,7 +71,6 @@ if __name__ == "__main__":
     policy = Policy(content, env_id)  # checkpoint.load names a resume.pt's normaliser
     print(f"{env_id}, {content['global_step']:,} steps: the deterministic policy")
     for where, r in policy_by_goal(policy, env_id, range(10**6, 10**6 + args.episodes)).items():
-        print(f"  goals {where:5}: {r['episodes']:3} episodes, success {r['success']:.2f}, "
-              f"object held up {r['held']:.2f}")  # fmt: skip
+        print(f"  goals {where:5}: {r['episodes']:3} episodes, success {r['success']:.2f}, object held up {r['held']:.2f}")
     fifths = " / ".join(f"{share:.3f}" for share in replay_lifts(content["rb"]))
     print(f"training episodes with the object held up, by fifths of training: {fifths}")

@@ -28,8 +28,7 @@ if __name__ == "__main__":
     for run in args.runs:
         saved = checkpoint._read(os.path.join(run, checkpoint.RESUME_FILE))
         normalizer = "InputNormalizer" if "obs_rms" in saved["normalizer"] else "RunningMeanStd"
-        policy = Policy({**saved, "last_eval_seeds": [], "normalizer_class": normalizer},
-                        saved["args"]["env_id"])  # fmt: skip
+        policy = Policy({**saved, "last_eval_seeds": [], "normalizer_class": normalizer}, saved["args"]["env_id"])
         mean, _ = policy.evaluate(seeds)
         torch.manual_seed(0)
         sampled, _ = policy.evaluate(seeds, stochastic=True)

@@ -41,8 +41,7 @@ def seconds(fn) -> float:
 
 
 def make_envs(vector_env):
-    envs = vector_env([lambda: gym.make("FetchReach-v4")] * 2,
-                      autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)  # fmt: skip
+    envs = vector_env([lambda: gym.make("FetchReach-v4")] * 2, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
     envs.reset(seed=0)
     return envs
 
@@ -76,8 +75,10 @@ if __name__ == "__main__":
     stepping(), learning()  # warm-up
     for _ in range(2):
         a, b = seconds(stepping), seconds(learning)
-        print(f"stepping {a:.2f} s, learning {b:.2f} s: serial {a + b:.2f} s, "
-              f"ideal {max(a, b):.2f} s; (a) thread {seconds(in_a_thread):.2f} s, (b) processes"
-              f" {seconds(lambda: interleaved(processes)):.2f} s, (c) interleaved in one process"
-              f" {seconds(one_process):.2f} s")  # fmt: skip
+        print(
+            f"stepping {a:.2f} s, learning {b:.2f} s: serial {a + b:.2f} s, "
+            f"ideal {max(a, b):.2f} s; (a) thread {seconds(in_a_thread):.2f} s, (b) processes"
+            f" {seconds(lambda: interleaved(processes)):.2f} s, (c) interleaved in one process"
+            f" {seconds(one_process):.2f} s"
+        )
     processes.close()

@@ -27,22 +27,19 @@ ROOT = os.path.abspath(os.path.join(__file__, "../../.."))  # the project root
 # (phase, names of which one must be on the stack, the files it must be in, a name that must be
 # outside it): a sample goes to the first phase whose rule its stack matches
 PHASES = (
-    ("evaluation", ("evaluate", "finished", "evaluate_policy"),
-     ("common/evaluate.py", "common/background.py"), None),
+    ("evaluation", ("evaluate", "finished", "evaluate_policy"), ("common/evaluate.py", "common/background.py"), None),
     ("stepping", ("SyncVectorEnv.step",), None, None),
     ("replay writes", ("add",), ("common/replay.py", "common/her.py"), None),
     ("replay sampling", ("sample_replay",), None, None),
     ("critic steps", ("critic_step",), None, None),
     ("diagnostics", ("interpolation_report", "qprop_report", "variance_report"), None, None),
     ("policy update", ("ppo_kl_update", "qprop_update", "ipg_update"), None, None),
-    ("advantages and reward scaling", ("make_batch", "control_variate", "RewardScaler.__call__"),
-     None, None),
-    ("normalisation", ("update", "normalize", "__call__", "inputs"), ("common/normalizer.py",),
-     None),
+    ("advantages and reward scaling", ("make_batch", "control_variate", "RewardScaler.__call__"), None, None),
+    ("normalisation", ("update", "normalize", "__call__", "inputs"), ("common/normalizer.py",), None),
     ("policy inference", ("dist", "_call_impl", "sample"), None, "rollout"),
     ("rollout bookkeeping", ("rollout",), None, None),
     ("logging and checkpoints", ("end_iteration", "record_episodes", "Run.log"), None, None),
-)  # fmt: skip
+)
 RATE = 200  # samples per second
 
 
@@ -92,16 +89,40 @@ if __name__ == "__main__":
         start = time.perf_counter()
         py_spy = os.path.join(os.path.dirname(sys.executable), "py-spy")  # this venv's, or PATH's
         py_spy = py_spy if os.path.exists(py_spy) else "py-spy"
-        subprocess.run([py_spy, "record", "--rate", str(RATE), "--nonblocking", "--format", "raw",
-                        "--output", out, "--", sys.executable, os.path.join(ROOT, args.script),
-                        *script_args], cwd=ROOT, check=True, stdout=sys.stderr)  # fmt: skip
+        subprocess.run(
+            [
+                py_spy,
+                "record",
+                "--rate",
+                str(RATE),
+                "--nonblocking",
+                "--format",
+                "raw",
+                "--output",
+                out,
+                "--",
+                sys.executable,
+                os.path.join(ROOT, args.script),
+                *script_args,
+            ],
+            cwd=ROOT,
+            check=True,
+            stdout=sys.stderr,
+        )
         wall = time.perf_counter() - start
         with open(out) as f:
             totals = phase_samples(f.read())
     total = sum(totals.values())
     for phase, samples in sorted(totals.items(), key=lambda item: -item[1]):
-        print(json.dumps({"phase": phase, "seconds": round(samples / RATE, 2),
-                          "share": round(samples / total, 3)}))  # fmt: skip
-    print(json.dumps({"phase": "all samples", "seconds": round(total / RATE, 2),
-                      "wall_s": round(wall, 2), "script": args.script,
-                      "args": " ".join(script_args)}))  # fmt: skip
+        print(json.dumps({"phase": phase, "seconds": round(samples / RATE, 2), "share": round(samples / total, 3)}))
+    print(
+        json.dumps(
+            {
+                "phase": "all samples",
+                "seconds": round(total / RATE, 2),
+                "wall_s": round(wall, 2),
+                "script": args.script,
+                "args": " ".join(script_args),
+            }
+        )
+    )

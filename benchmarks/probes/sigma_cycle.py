@@ -25,9 +25,15 @@ import numpy as np
 sys.path.insert(0, os.path.abspath(os.path.join(__file__, "../../..")))  # the project root
 from benchmarks.events import read_run  # noqa: E402
 
-COLUMNS = {"eval": "eval/success_rate", "entropy": "charts/policy_entropy", "alpha": "ipg/alpha",
-           "beta": "losses/beta", "KL": "losses/approx_kl", "Q": "losses/q_values",
-           "train": "charts/success_rate"}  # fmt: skip
+COLUMNS = {
+    "eval": "eval/success_rate",
+    "entropy": "charts/policy_entropy",
+    "alpha": "ipg/alpha",
+    "beta": "losses/beta",
+    "KL": "losses/approx_kl",
+    "Q": "losses/q_values",
+    "train": "charts/success_rate",
+}
 
 
 def binned(points, width: int, start: int = 0) -> dict[int, float]:
@@ -43,8 +49,7 @@ def binned(points, width: int, start: int = 0) -> dict[int, float]:
 def troughs(entropy: dict[int, float]) -> list[int]:
     """The bins whose entropy is the lowest within two bins either side and below the median."""
     ends, h = list(entropy), np.array(list(entropy.values()))
-    return [ends[i] for i in range(len(h))
-            if h[i] < np.median(h) and h[i] == h[max(i - 2, 0) : i + 3].min()]  # fmt: skip
+    return [ends[i] for i in range(len(h)) if h[i] < np.median(h) and h[i] == h[max(i - 2, 0) : i + 3].min()]
 
 
 def ranges(entropy: dict[int, float], width: int = 100_000) -> dict[int, tuple[float, float]]:
@@ -60,9 +65,7 @@ def ranges(entropy: dict[int, float], width: int = 100_000) -> dict[int, tuple[f
 def at_troughs(evals: dict[int, float], low: list[int], width: int) -> tuple[list, list]:
     """The evaluations of the troughs' bins and of the bins just after them; all the others."""
     near = set(low) | {end + width for end in low}
-    return [e for end, e in evals.items() if end in near], [
-        e for end, e in evals.items() if end not in near
-    ]
+    return [e for end, e in evals.items() if end in near], [e for end, e in evals.items() if end not in near]
 
 
 if __name__ == "__main__":
@@ -81,23 +84,24 @@ if __name__ == "__main__":
             for seed, scalars in json.loads(Path(args.export).read_text())[args.name].items()
         }
     else:
-        runs = {os.path.basename(os.path.normpath(run)): read_run(
-            max(Path(run).glob("**/events.out.tfevents.*")).parent, tags=tuple(COLUMNS.values()))
-            for run in args.runs}  # fmt: skip
+        runs = {
+            os.path.basename(os.path.normpath(run)): read_run(
+                max(Path(run).glob("**/events.out.tfevents.*")).parent, tags=tuple(COLUMNS.values())
+            )
+            for run in args.runs
+        }
     for label, scalars in runs.items():
-        table = {name: binned(scalars.get(tag, []), args.bin, args.start)
-                 for name, tag in COLUMNS.items()}  # fmt: skip
+        table = {name: binned(scalars.get(tag, []), args.bin, args.start) for name, tag in COLUMNS.items()}
         print(f"{label}\n  step  " + "  ".join(f"{name:>7}" for name in COLUMNS))
         for end in table["entropy"]:
-            row = (
-                f"{table[name][end]:7.3g}" if end in table[name] else "      -" for name in COLUMNS
-            )
+            row = (f"{table[name][end]:7.3g}" if end in table[name] else "      -" for name in COLUMNS)
             print(f"  {end // 1000:4d}k " + "  ".join(row))
         spans = ranges(table["entropy"]).items()
-        print("  entropy per 100k: " + ", ".join(
-            f"{end // 1000}k {lo:.0f} to {hi:.0f}" for end, (lo, hi) in spans))  # fmt: skip
+        print("  entropy per 100k: " + ", ".join(f"{end // 1000}k {lo:.0f} to {hi:.0f}" for end, (lo, hi) in spans))
         low = troughs(table["entropy"])
         near, rest = at_troughs(table["eval"], low, args.bin)
         print(f"  troughs at {', '.join(f'{end // 1000}k' for end in low)}")
-        print(f"  evaluation: mean {np.mean(near):.2f} in the {len(near)} bins at or just after a "
-              f"trough, {np.mean(rest):.2f} in the {len(rest)} others")  # fmt: skip
+        print(
+            f"  evaluation: mean {np.mean(near):.2f} in the {len(near)} bins at or just after a "
+            f"trough, {np.mean(rest):.2f} in the {len(rest)} others"
+        )

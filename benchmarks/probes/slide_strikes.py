@@ -64,8 +64,7 @@ def follow(env, obs: dict, start, along, act, steps: int):
         if pushes or np.linalg.norm(obs["achieved_goal"] - start) > MOVED:
             came_in = speed if came_in is None else came_in
             a = action[:2]
-            pushes.append((a @ along / (full @ along), a[main] / full[main],
-                           abs(a[1 - main] - full[1 - main])))  # fmt: skip
+            pushes.append((a @ along / (full @ along), a[main] / full[main], abs(a[1 - main] - full[1 - main])))
         speed = float(obs["observation"][GRIP_VELP] @ along)
     pushed = np.mean(pushes[:PUSH], axis=0) if pushes else np.zeros(3)
     return obs, info, (peak, came_in or 0.0, *pushed)
@@ -91,8 +90,14 @@ def policy_strikes(policy, seeds: range, gain: float = 1.0) -> np.ndarray:
     for seed in seeds:
         obs, start, goal, along = reset(env, seed)
         obs, info, struck = follow(env, obs, start, along, with_gain(policy, start, gain), EPISODE)
-        rows.append((np.linalg.norm((goal - start)[:2]), info["is_success"],
-                     *slide_outcome(start, goal, obs["achieved_goal"]), *struck))  # fmt: skip
+        rows.append(
+            (
+                np.linalg.norm((goal - start)[:2]),
+                info["is_success"],
+                *slide_outcome(start, goal, obs["achieved_goal"]),
+                *struck,
+            )
+        )
     env.close()
     return np.array(rows, float)
 
@@ -100,8 +105,9 @@ def policy_strikes(policy, seeds: range, gain: float = 1.0) -> np.ndarray:
 def critic(content: dict) -> torch.nn.Module:
     """The run's critic Q_w from its ``resume.pt``, as ``ipg_her_recipe.py`` built it."""
     a, state = content["args"], content["qf"]
-    qf = ipg_her_recipe.QNetwork(state["net.0.weight"].shape[1] - 4, 4, a["hidden"], -np.ones(4),
-                          np.ones(4), a.get("twin_critic", False))  # fmt: skip
+    qf = ipg_her_recipe.QNetwork(
+        state["net.0.weight"].shape[1] - 4, 4, a["hidden"], -np.ones(4), np.ones(4), a.get("twin_critic", False)
+    )
     qf.load_state_dict(state)
     return qf
 
@@ -186,39 +192,53 @@ if __name__ == "__main__":
     print(f"{args.run_folder}: success {r[:, 1].mean():.2f} over {len(r)} fresh episodes")
     for part in np.array_split(r[np.argsort(r[:, 0])], 3):
         peak, came_in, pushed, main, other = np.median(part[:, 4:], axis=0)
-        print(f"  slides of {part[0, 0]:.2f}-{part[-1, 0]:.2f} m: success {part[:, 1].mean():.2f}; "
-              f"medians: the puck's top speed {peak:.4f}, the gripper coming in at {came_in:.4f} "
-              f"(m/step), pushing at {pushed:.2f} of the full action ({main:.2f} on its main "
-              f"axis, the other axis {other:.2f} from the full push's)")  # fmt: skip
+        print(
+            f"  slides of {part[0, 0]:.2f}-{part[-1, 0]:.2f} m: success {part[:, 1].mean():.2f}; "
+            f"medians: the puck's top speed {peak:.4f}, the gripper coming in at {came_in:.4f} "
+            f"(m/step), pushing at {pushed:.2f} of the full action ({main:.2f} on its main "
+            f"axis, the other axis {other:.2f} from the full push's)"
+        )
     for gain in args.gains:
         g = policy_strikes(policy, episodes, gain)
         parts = np.array_split(g[g[:, 0].argsort()], 3)
         thirds = " / ".join(f"{p[:, 1].mean():.2f}" for p in parts)
         short = np.mean(g[g[:, 1] == 0, 2] < 0.9)
-        print(f"  x, y action times {gain} once the puck moved: success {g[:, 1].mean():.2f}, "
-              f"near / middle / far {thirds}; failures stopped short {short:.2f}")  # fmt: skip
+        print(
+            f"  x, y action times {gain} once the puck moved: success {g[:, 1].mean():.2f}, "
+            f"near / middle / far {thirds}; failures stopped short {short:.2f}"
+        )
     if args.critic:
         c = critic_at_contact(critic(content), policy, episodes)
         for part in np.array_split(c[c[:, 0].argsort()], 3):
             slope, harder, pushed = np.median(part[:, 1:], axis=0)
             wants = np.mean(part[:, 2] > 0)
-            print(f"  slides of {part[0, 0]:.2f}-{part[-1, 0]:.2f} m, the step moving the puck: "
-                  f"dQ_1/da along the line {slope:+.2f}, Q_1(x, y times 1.2) - Q_1 {harder:+.3f} "
-                  f"(> 0 in {wants:.2f}), action along the line {pushed:.2f}")  # fmt: skip
+            print(
+                f"  slides of {part[0, 0]:.2f}-{part[-1, 0]:.2f} m, the step moving the puck: "
+                f"dQ_1/da along the line {slope:+.2f}, Q_1(x, y times 1.2) - Q_1 {harder:+.3f} "
+                f"(> 0 in {wants:.2f}), action along the line {pushed:.2f}"
+            )
     fail = r[r[:, 1] == 0]
     short, past = np.mean(fail[:, 2] < 0.9), np.mean(fail[:, 2] > 1.1)
     beside = np.median(np.abs(fail[:, 3]))
-    print(f"  failures ({len(fail)}): stopped short (< 0.9 of the way) {short:.2f}, past the goal "
-          f"(> 1.1) {past:.2f}, median distance beside the line {beside:.3f} m")  # fmt: skip
+    print(
+        f"  failures ({len(fail)}): stopped short (< 0.9 of the way) {short:.2f}, past the goal "
+        f"(> 1.1) {past:.2f}, median distance beside the line {beside:.3f} m"
+    )
     if "rb" in content:  # a resume.pt: what the exploring policy did in training
         far, fell = replay_slides(content["rb"])
-        print(f"  training episodes of the last 40% of the replay buffer: slid at least 0.55 m "
-              f"{far:.2f}, left the table {fell:.2f}")  # fmt: skip
+        print(
+            f"  training episodes of the last 40% of the replay buffer: slid at least 0.55 m "
+            f"{far:.2f}, left the table {fell:.2f}"
+        )
     seeds = range(3000, 3000 + args.episodes // 10)
-    for name, how in (("the full push, 13 cm behind", {}), ("0.95 of it", {"push": 0.95}),
-                      ("0.9 of it", {"push": 0.9}), ("from rest at 5 cm", {"behind": 0.05}),
-                      ("stopped after 3 steps", {"hold": 3}),
-                      ("3 cm higher", {"height": 0.035})):  # fmt: skip
+    for name, how in (
+        ("the full push, 13 cm behind", {}),
+        ("0.95 of it", {"push": 0.95}),
+        ("0.9 of it", {"push": 0.9}),
+        ("from rest at 5 cm", {"behind": 0.05}),
+        ("stopped after 3 steps", {"hold": 3}),
+        ("3 cm higher", {"height": 0.035}),
+    ):
         struck = [s for s in (scripted_strike(seed, **how) for seed in seeds) if s]
         slide, peak, came_in, *_ = np.median(struck, axis=0)
         print(
@@ -227,7 +247,9 @@ if __name__ == "__main__":
         )
     far = np.array_split(np.argsort(r[:, 0]), 3)[-1]  # can the full push reach the far goals?
     reach = np.array([(r[i, 0], s[0]) for i in far if (s := scripted_strike(episodes[i]))])
-    print(f"  scripted, the full push on the far third's goals ({len(reach)} of {len(far)} "
-          f"episodes): slides {np.min(reach[:, 1]):.2f}-{np.max(reach[:, 1]):.2f} m (median "
-          f"{np.median(reach[:, 1]):.2f}), to within 5 cm of the goal's distance or beyond in "
-          f"{np.mean(reach[:, 1] >= reach[:, 0] - 0.05):.2f}")  # fmt: skip
+    print(
+        f"  scripted, the full push on the far third's goals ({len(reach)} of {len(far)} "
+        f"episodes): slides {np.min(reach[:, 1]):.2f}-{np.max(reach[:, 1]):.2f} m (median "
+        f"{np.median(reach[:, 1]):.2f}), to within 5 cm of the goal's distance or beyond in "
+        f"{np.mean(reach[:, 1] >= reach[:, 0] - 0.05):.2f}"
+    )

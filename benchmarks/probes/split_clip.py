@@ -53,9 +53,11 @@ def clip(split: bool):
 def summary() -> str:
     f, s = np.array(factors), np.array(sigma_shares)
     q = np.quantile(f, [0.05, 0.5, 0.95])
-    return (f"policy clips: {len(f)}; the joint clip's factor: 5% {q[0]:.3g}, median {q[1]:.3g}, "
-            f"95% {q[2]:.3g}; below 0.1 in {np.mean(f < 0.1):.0%}; log sigma's share of the "
-            f"squared norm: median {np.median(s):.2f}")  # fmt: skip
+    return (
+        f"policy clips: {len(f)}; the joint clip's factor: 5% {q[0]:.3g}, median {q[1]:.3g}, "
+        f"95% {q[2]:.3g}; below 0.1 in {np.mean(f < 0.1):.0%}; log sigma's share of the "
+        f"squared norm: median {np.median(s):.2f}"
+    )
 
 
 if __name__ == "__main__":

@@ -50,10 +50,20 @@ if __name__ == "__main__":
     torch.set_num_threads(1)
     env = gym.wrappers.RecordEpisodeStatistics(gym.make("Hopper-v5"))
     noise = NormalActionNoise(np.zeros(3), 0.1 * np.ones(3))
-    model = TD3("MlpPolicy", env, learning_rate=3e-4, buffer_size=1_000_000,
-                learning_starts=10_000, batch_size=256, tau=0.005, gamma=0.99,
-                action_noise=noise, policy_kwargs=dict(net_arch=[256, 256]), seed=args.seed,
-                device="cpu")  # fmt: skip
+    model = TD3(
+        "MlpPolicy",
+        env,
+        learning_rate=3e-4,
+        buffer_size=1_000_000,
+        learning_starts=10_000,
+        batch_size=256,
+        tau=0.005,
+        gamma=0.99,
+        action_noise=noise,
+        policy_kwargs=dict(net_arch=[256, 256]),
+        seed=args.seed,
+        device="cpu",
+    )
     episodes, start = Episodes(), time.time()
     model.learn(total_timesteps=args.steps, callback=episodes)
     wall = time.time() - start

@@ -43,8 +43,7 @@ def test_update_speed_times_each_full_update_and_leaves_the_first_out(monkeypatc
     monkeypatch.setattr(ppo_kl, "ppo_kl_update", counted)
     timing = update_speed.time_updates("eager", update_speed.Args(repeats=2))
     assert adam_steps == [320, 640, 960]
-    assert timing == {"mode": "eager", "first_s": 2, "min_s": 3, "median_s": 5,
-                      "minibatch_steps": 320}  # fmt: skip
+    assert timing == {"mode": "eager", "first_s": 2, "min_s": 3, "median_s": 5, "minibatch_steps": 320}
 
 
 def test_the_profile_gives_each_sample_to_its_phase():
@@ -54,8 +53,7 @@ def test_the_profile_gives_each_sample_to_its_phase():
     stacks = {
         "rollout (ppo_kl.py:151);SyncVectorEnv.step (gymnasium/vector/"
         "sync_vector_env.py:338);HopperEnv.step (gymnasium/envs/mujoco/hopper_v5.py:290)": 5,
-        "rollout (ppo_kl.py:147);Agent.dist (ppo_kl.py:120);Module._call_impl "
-        "(torch/nn/modules/module.py:1)": 3,
+        "rollout (ppo_kl.py:147);Agent.dist (ppo_kl.py:120);Module._call_impl (torch/nn/modules/module.py:1)": 3,
         "ppo_kl_update (ppo_kl.py:155);Agent.dist (ppo_kl.py:120)": 7,
         "rollout (ppo_kl.py:145);RunningMeanStd.update (common/normalizer.py:30)": 2,
         "RewardScaler.__call__ (common/normalizer.py:110)": 1,
@@ -70,17 +68,39 @@ def test_the_profile_gives_each_sample_to_its_phase():
     }
     raw = "\n".join(f"<module> (ipg_her.py:1);{stack} {n}" for stack, n in stacks.items())
     assert profile_phases.phase_samples(raw) == {
-        "stepping": 5, "policy inference": 3, "policy update": 7, "normalisation": 2,
-        "advantages and reward scaling": 1, "critic steps": 4, "replay sampling": 6,
-        "replay writes": 5, "evaluation": 8, "logging and checkpoints": 2,
+        "stepping": 5,
+        "policy inference": 3,
+        "policy update": 7,
+        "normalisation": 2,
+        "advantages and reward scaling": 1,
+        "critic steps": 4,
+        "replay sampling": 6,
+        "replay writes": 5,
+        "evaluation": 8,
+        "logging and checkpoints": 2,
         "start-up and the rest": 10,
-    }  # fmt: skip
+    }
 
 
 def test_the_profile_of_a_tiny_run_names_its_phases(tmp_path):
-    cmd = [sys.executable, "benchmarks/probes/profile_phases.py", "ppo_kl.py", "--",
-           "--total-timesteps", "2048", "--num-envs", "2", "--num-steps", "512", "--eval-freq",
-           "0", "--eval-episodes", "1", "--log-dir", str(tmp_path)]  # fmt: skip
+    cmd = [
+        sys.executable,
+        "benchmarks/probes/profile_phases.py",
+        "ppo_kl.py",
+        "--",
+        "--total-timesteps",
+        "2048",
+        "--num-envs",
+        "2",
+        "--num-steps",
+        "512",
+        "--eval-freq",
+        "0",
+        "--eval-episodes",
+        "1",
+        "--log-dir",
+        str(tmp_path),
+    ]
     out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     lines = [json.loads(line) for line in out.stdout.splitlines()]
@@ -133,8 +153,9 @@ def test_slide_strikes_gain_scales_x_and_y_only_once_the_puck_has_moved():
     assert np.array_equal(act({"achieved_goal": start + [0.004, 0, 0]}, 0), policy(None))
     pushed = act({"achieved_goal": start + [0.01, 0, 0]}, 1)
     assert pushed.dtype == np.float32 and np.allclose(pushed, [0.9, -0.45, 0.5, 0.2])
-    assert np.allclose(slide_strikes.with_gain(policy, start, 2)({"achieved_goal": start + 1}, 2),
-                       [1.0, -0.6, 0.5, 0.2])  # clipped to the bounds  # fmt: skip
+    assert np.allclose(
+        slide_strikes.with_gain(policy, start, 2)({"achieved_goal": start + 1}, 2), [1.0, -0.6, 0.5, 0.2]
+    )  # clipped to the bounds
 
 
 def test_slide_strikes_reads_the_critic_at_the_step_that_moves_the_puck():
@@ -206,10 +227,8 @@ def test_sigma_cycle_bins_a_run_finds_the_entropy_troughs_and_the_evaluations_th
     evals = {10: 0.5, 20: 0.1, 30: 0.2, 40: 0.6}
     assert sigma_cycle.at_troughs(evals, [20], 10) == ([0.1, 0.2], [0.5, 0.6])
     binned = {10_000 * i: float(i % 7) for i in range(1, 31)}  # 0-6 again and again
-    assert sigma_cycle.ranges(binned) == {100_000: (0.0, 6.0), 200_000: (0.0, 6.0),
-                                          300_000: (0.0, 6.0)}  # fmt: skip
-    assert sigma_cycle.ranges({50_000: 3.0, 100_000: 1.0, 110_000: 5.0}) == {
-        100_000: (1.0, 3.0), 200_000: (5.0, 5.0)}  # fmt: skip
+    assert sigma_cycle.ranges(binned) == {100_000: (0.0, 6.0), 200_000: (0.0, 6.0), 300_000: (0.0, 6.0)}
+    assert sigma_cycle.ranges({50_000: 3.0, 100_000: 1.0, 110_000: 5.0}) == {100_000: (1.0, 3.0), 200_000: (5.0, 5.0)}
 
 
 def test_split_clip_scales_the_mean_network_with_log_sigma_or_on_its_own():

@@ -37,12 +37,14 @@ def time_updates(mode: str, args: Args) -> dict:
     torch.manual_seed(0)
     ppo_args = ppo_kl.Args()
     agent = ppo_kl.Agent(args.obs_dim, args.act_dim, init_log_std=ppo_args.init_log_std)
-    optimizer = torch.optim.Adam(
-        agent.parameters(), lr=ppo_args.learning_rate, eps=1e-5, fused=True
-    )
+    optimizer = torch.optim.Adam(agent.parameters(), lr=ppo_args.learning_rate, eps=1e-5, fused=True)
     n = ppo_args.num_envs * ppo_args.num_steps
-    b = {"obs": torch.randn(n, args.obs_dim), "actions": 0.6 * torch.randn(n, args.act_dim),
-         "advantages": torch.randn(n), "returns": torch.randn(n)}  # fmt: skip
+    b = {
+        "obs": torch.randn(n, args.obs_dim),
+        "actions": 0.6 * torch.randn(n, args.act_dim),
+        "advantages": torch.randn(n),
+        "returns": torch.randn(n),
+    }
     with torch.no_grad():
         pi = agent.dist(b["obs"])
         b |= {"logprobs": pi.log_prob(b["actions"]).sum(-1), "mean": pi.mean, "std": pi.stddev}
@@ -53,9 +55,13 @@ def time_updates(mode: str, args: Args) -> dict:
         update(agent, optimizer, b, 1.0, ppo_args)
         seconds.append(time.perf_counter() - start)
     first, rest = seconds[0], sorted(seconds[1:])
-    return {"mode": mode, "first_s": round(first, 3), "min_s": round(rest[0], 4),
-            "median_s": round(rest[len(rest) // 2], 4),
-            "minibatch_steps": ppo_args.update_epochs * ppo_args.num_minibatches}  # fmt: skip
+    return {
+        "mode": mode,
+        "first_s": round(first, 3),
+        "min_s": round(rest[0], 4),
+        "median_s": round(rest[len(rest) // 2], 4),
+        "minibatch_steps": ppo_args.update_epochs * ppo_args.num_minibatches,
+    }
 
 
 if __name__ == "__main__":
