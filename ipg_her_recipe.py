@@ -12,10 +12,11 @@ relabels what the critic and the off-policy term see; the likelihood-ratio term 
 The variant: ``ipg_her.py`` plus a recipe for the harder goal tasks (docs/ipg_her_recipe.md),
 each addition measured on the Fetch tasks: twin critics (TD3, Fujimoto et al. 2018), an
 entropy-targeted sigma (SAC's alpha rule, Haarnoja et al. 2018), an action penalty (OpenAI's HER)
-and a bounds loss (rl_games), annealed learning rates and grasped starts (HER sec. 4.1). Every goal
-task takes the twin critics, the action penalty, a sigma rule per action dimension, its horizon's
-discount and, where an object can be held, grasped starts (task_defaults), with no row of its own;
-that rule was chosen on tuning runs on seed 11, not exported (docs/investigations/one_recipe.md).
+and a bounds loss (rl_games), annealed learning rates and grasped starts (HER sec. 4.1). Its
+defaults are its Args' (``--help``); three follow from the task and are filled in at start
+(``fill_in``): a sigma rule per action dimension, the horizon's discount and, where an object can
+be held, grasped starts. That rule was chosen on tuning runs on seed 11, not exported
+(docs/investigations/one_recipe.md).
 
 Where these defaults lose, on held-out seeds (docs/results.md): FetchSlide-v4 ends at 0.02 at 1M,
 where --target-std 0.3 0.3 0.3 1 --action-l2 0 --bounds-loss 1 --anneal-lr reached 0.82;
@@ -49,30 +50,12 @@ tasks.register_goal_tasks()
 torch.distributions.Distribution.set_default_validate_args(False)  # its checks cost ~10% of a run
 SUCCESS_KEYS = ("is_success", "success")  # a goal task's success flag: Fetch's, the mazes'
 BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch cannot switch it off
-RECIPE = dict(
-    hidden=256, normalization="paper", action_l2=1.0, twin_critic=True
-)  # every goal task's, each one measured on FetchPush (docs); task_defaults adds the rest
-
-
-def task_defaults(env_id: str) -> dict:
-    """A goal task's defaults: the RECIPE, and from the task itself one sigma rule per action
-    dimension at min(1, 2 / sqrt(d)) on its d dimensions (a noise vector of length 2, no
-    dimension's sigma above 1), the discount 1 - 1/H of its H-step episodes and, where the
-    gripper can hold the object, grasped starts for half of the episodes. Else none."""
-    if not tasks.goal_task(env_id):
-        return {}
-    env = gym.make(env_id)
-    d, horizon = env.action_space.shape[0], env.spec.max_episode_steps
-    env.close()
-    own = dict(target_std=(round(min(1.0, 2 / d**0.5), 3),) * d)  # 0.447 on 20 joints
-    own |= dict(gamma=1 - 1 / horizon) if (horizon or 0) > 1 else {}  # H <= 1: --gamma default
-    return RECIPE | own | (dict(grasped_start=0.5) if refusal(env_id) is None else {})
 
 
 @dataclass
 class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
-    """IPG with HER and a recipe for the harder goal tasks (docs/ipg_her_recipe.md). A goal task
-    takes the recipe's defaults (task_defaults), which lose on held-out seeds: FetchSlide-v4 ends
+    """IPG with HER and a recipe for the harder goal tasks (docs/ipg_her_recipe.md). Its defaults,
+    the task's filled in at start, lose on held-out seeds: FetchSlide-v4 ends
     at 0.02 at 1M, where --target-std 0.3 0.3 0.3 1 --action-l2 0 --bounds-loss 1 --anneal-lr
     reached 0.82; FetchPickAndPlace-v4 0.68 at 500k, where --target-std 1.0 1.0 1.0 0.3 reached
     0.96. Pass those flags there."""
@@ -89,8 +72,8 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     """the learning rate of Adam (1e-3: OpenAI's HER recipe)"""
     anneal_lr: bool = False
     """anneal the learning rates (the policy's and the critic's) linearly to zero"""
-    gamma: float = 0.98
-    """the discount factor gamma (a goal task's: 1 - 1/H, H its episode length)"""
+    gamma: float | None = None
+    """the discount factor gamma (None: 1 - 1/H for the task's H-step episodes, 0.98 without them; filled in at start)"""
     gae_lambda: float = 0.95
     """lam of GAE (eq. 4)"""
     num_minibatches: int = 1
@@ -131,7 +114,7 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     """Q_bar_w(s) as Q_w(s, mu(s)) (mean) or Q_w(s, mu(s) + sigma eps), a reparameterised sample"""
     off_policy_batch_size: int = 256
     """replay states per policy minibatch for the off-policy term"""
-    normalization: Literal["paper", "unbiased"] = "unbiased"
+    normalization: Literal["paper", "unbiased"] = "paper"
     """normalise the learning signal only (paper, biased) or the critic's term with it (unbiased)"""
     buffer_size: int = 1_000_000
     """replay buffer capacity in transitions"""
@@ -141,7 +124,7 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     """transitions per critic step"""
     critic_steps: int = 50
     """critic steps per iteration (50 per 100 env steps: OpenAI's HER recipe)"""
-    hidden: int = 64
+    hidden: int = 256
     """width of the two hidden layers of every network (policy, V and Q_w)"""
     tau: float = 0.05
     """soft target update rate of eq. 6, after every critic step (0.05: OpenAI's HER)"""
@@ -150,31 +133,17 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
 
     # the recipe
     target_std: float | tuple[float, ...] | None = None
-    """the sigma rule: hold H(pi) at H(N(0, target_std^2)) per action, or one each (None: off;
-    a goal task's: min(1, 2 / sqrt(d)) on each of its d action dimensions)"""
-    grasped_start: float = 0.0
-    """share of training episodes started with the object in the gripper (a goal task whose
-    gripper can hold its object: the HER paper's 0.5)"""
-    action_l2: float = 0.0
+    """the sigma rule: hold H(pi) at H(N(0, target_std^2)) per action, or one each (None: min(1, 2 / sqrt(d)) on each of
+    the task's d action dimensions, filled in at start)"""
+    grasped_start: float | None = None
+    """share of training episodes started with the object in the gripper (None: the HER paper's 0.5 where the gripper can
+    hold the object, else 0; filled in at start)"""
+    action_l2: float = 1.0
     """weight of the penalty mean(mu(s)^2) beside the off-policy term (OpenAI's HER: 1)"""
     bounds_loss: float = 0.0
     """weight of the penalty mean((mu(s) beyond the action bounds)^2) (rl_games' bounds loss)"""
-    twin_critic: bool = False
+    twin_critic: bool = True
     """two critics, the target the smaller of their Q_w' (TD3's clipped double Q)"""
-
-
-def ignored(args: Args, goal_task: bool = True) -> dict[str, str]:
-    """The flags this run would ignore, ``{flag: why}``: given on the command line, they fail."""
-    critic_flags = "--critic-learning-rate --critic-batch-size --critic-steps --tau --buffer-size --learning-starts --q-bar "
-    critic_flags += f"--off-policy-states --off-policy-batch-size --normalization --diagnostics-every {her.FLAGS}"
-    critic_flags += " --action-l2 --bounds-loss --twin-critic"
-    no_critic = args.nu == 0 and not args.use_cv
-    return her.ignored(args, args.env_id, goal_task) | cli.ignored(
-        (not args.norm_adv, "--normalization", "--no-norm-adv: nothing to normalise"),
-        (args.off_policy_states == "batch", "--off-policy-batch-size", "--off-policy-states batch"),
-        (args.nu == 1 and args.use_cv, "--use-cv", "at --nu 1 its on-policy term has weight 0"),
-        (no_critic, critic_flags, "at --nu 0 without --use-cv no term uses the critic"),
-    )
 
 
 def check_args(args: Args, argv: list[str]) -> None:
@@ -183,7 +152,17 @@ def check_args(args: Args, argv: list[str]) -> None:
     cli.check_ppo_kl(args)
     cli.check_range(args, "nu", 0.0, 1.0)
     cli.check_non_negative(args, "critic_steps", "learning_starts", "action_l2", "bounds_loss")
-    cli.refuse_ignored(argv, ignored(args, goal_task))
+    critic_flags = "--critic-learning-rate --critic-batch-size --critic-steps --tau --buffer-size --learning-starts --q-bar "
+    critic_flags += f"--off-policy-states --off-policy-batch-size --normalization --diagnostics-every {her.FLAGS}"
+    critic_flags += " --action-l2 --bounds-loss --twin-critic"
+    no_critic = args.nu == 0 and not args.use_cv
+    ignored = her.ignored(args, args.env_id, goal_task) | cli.ignored(
+        (not args.norm_adv, "--normalization", "--no-norm-adv: nothing to normalise"),
+        (args.off_policy_states == "batch", "--off-policy-batch-size", "--off-policy-states batch"),
+        (args.nu == 1 and args.use_cv, "--use-cv", "at --nu 1 its on-policy term has weight 0"),
+        (no_critic, critic_flags, "at --nu 0 without --use-cv no term uses the critic"),
+    )
+    cli.refuse_ignored(argv, ignored)
     cli.check_positive(args, "critic_learning_rate", "critic_batch_size", "buffer_size")
     cli.check_positive(args, "hidden", "off_policy_batch_size")
     batch = max(args.off_policy_batch_size, args.critic_batch_size, args.num_envs * args.num_steps)
@@ -201,8 +180,25 @@ def check_args(args: Args, argv: list[str]) -> None:
     if args.target_std is not None and len(stds) != 1:
         if len(stds) != (dims := gym.make(args.env_id).action_space.shape[0]):
             cli.fail(f"--target-std takes one sigma or one per action dimension ({dims} on {args.env_id}), not {len(stds)}")
-    cli.check_range(args, "grasped_start", 0.0, 1.0)
-    cli.refuse(args.grasped_start and refusal(args.env_id))
+    if args.grasped_start is not None:
+        cli.check_range(args, "grasped_start", 0.0, 1.0)
+        cli.refuse(args.grasped_start and refusal(args.env_id))
+
+
+def fill_in(args: Args) -> dict:
+    """The values that follow from the task, for the fields left at None (CleanRL's "filled in at runtime"): one sigma
+    rule per action dimension at min(1, 2 / sqrt(d)) on its d dimensions (a noise vector of length 2, no dimension's sigma
+    above 1), the discount 1 - 1/H of its H-step episodes (0.98 without them) and grasped starts for half of the episodes
+    where the gripper can hold the object. Returns what it filled in."""
+    env = gym.make(args.env_id)
+    d, horizon = env.action_space.shape[0], env.spec.max_episode_steps or 0
+    env.close()
+    task = dict(target_std=(round(min(1.0, 2 / d**0.5), 3),) * d, gamma=1 - 1 / horizon if horizon > 1 else 0.98)
+    task |= dict(grasped_start=0.5 if refusal(args.env_id) is None else 0.0)
+    filled = {name: value for name, value in task.items() if getattr(args, name) is None}
+    for name, value in filled.items():
+        setattr(args, name, value)
+    return filled
 
 
 # ENV SETUP
@@ -517,8 +513,10 @@ def sigma_rule(alpha, entropy: float, log_std: np.ndarray, target_std):
 
 
 if __name__ == "__main__":
-    args = cli.parse_args(Args, task_defaults=task_defaults, ignored=ignored)
+    args = cli.parse_args(Args)
     check_args(args, sys.argv[1:])
+    if filled := fill_in(args):  # what follows from the task, as one would type it
+        print(f"filled in from {args.env_id}: {cli.spelled(filled)}", flush=True)
     batch_size = args.num_envs * args.num_steps
     num_iterations = args.total_timesteps // batch_size
     run = Run(args)  # TRY NOT TO MODIFY: run folder, TensorBoard, seeding (common/run.py)

@@ -24,7 +24,7 @@ the suite's seeds or its own; ``--seeds`` replaces them):
   HandManipulateBlockRotateZ) and PointMaze_Medium; on PointMaze also with ``--gamma 0.995``,
   the setting it lacked (chosen on seeds 11-12), and on HandReach with ``--target-std 0.3``,
   summed and one rule per joint (chosen on seed 11).
-- ``one_recipe``: the defaults as ``task_defaults`` derives them from each task, no flag but the
+- ``one_recipe``: the defaults, the task's filled in by ``fill_in``, no flag but the
   budget, on all six goal tasks at their budgets, seeds 401-403, which chose nothing.
 
 ``benchmarks/run.py`` runs a suite (``suite_runs``); ``benchmarks/report.py`` shows it as its
@@ -145,6 +145,10 @@ TD3 = (
     "--hidden",
     "256",
     "--twin-critic",
+    "--normalization",
+    "unbiased",
+    "--action-l2",
+    "0.0",
     "--target-std",
     "0.3",
     "--q-bar",
@@ -161,10 +165,10 @@ TD3 = (
 TD3_NARROW = (*[f if f != "0.3" else "0.1" for f in TD3], "--kl-target", "0.9", "--bounds-loss", "1.0")
 FETCH_EVERY = ("--eval-freq", "10000", "--eval-episodes", "50", "--resume-freq", "50000")
 ONE_CRITIC = ("--no-twin-critic",)  # the recipe's defaults before the twin critic
-# The recipe's defaults when the fetch and goals suites ran, before task_defaults derived them
+# The recipe's defaults when the fetch and goals suites ran, before they were read off the task
 # from the task, spelled out so that their commands still run what ran: one sigma rule summed
 # over the action dimensions at 1 and gamma 0.98 on every goal task; PickAndPlace's and Slide's
-# rows of their own (PickAndPlace's grasped starts, 0.5, are what task_defaults gives it now).
+# rows of their own (PickAndPlace's grasped starts, 0.5, are what fill_in gives it now).
 SUMMED = ("--target-std", "1.0")
 PICK_ROW = ("--target-std", "1.0", "1.0", "1.0", "0.3")
 SLIDE_ROW = ("--target-std", "0.3", "0.3", "0.3", "1.0", "--action-l2", "0.0", "--bounds-loss", "1.0")  # and --anneal-lr
@@ -307,7 +311,7 @@ SUITES: dict[str, Suite] = {
                 "ipg_td3_paper_nu1.0_300k",
                 RECIPE,
                 HOPPER,
-                ("--nu", "1.0", *TD3_NARROW, "--normalization", "paper"),
+                ("--nu", "1.0", *[f if f != "unbiased" else "paper" for f in TD3_NARROW]),
                 (11, 12, 13),
             ),
             # nu 1 again on fresh trios, and nu 0.5 beside it on the last; PPO-KL on every trio
@@ -423,7 +427,7 @@ SUITES: dict[str, Suite] = {
             ),
         ],
     ),
-    # the recipe's defaults as task_defaults derives them, no flag but the budget, on every
+    # the recipe's defaults, the task's filled in by fill_in, no flag but the budget, on every
     # goal task, seeds none of its settings was chosen on; figures in steps (a maze's episode
     # is not 50 steps)
     "one_recipe": Suite(

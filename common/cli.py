@@ -13,7 +13,6 @@ import os
 import re
 import signal
 import sys
-from collections.abc import Callable
 from typing import NoReturn, TypeVar
 
 INTERRUPTED = "interrupted; nothing was written"
@@ -58,37 +57,24 @@ def fail(message: str) -> NoReturn:
     sys.exit(2)
 
 
-def parse_args(
-    args_class: type[A],
-    argv: list[str] | None = None,
-    prog: str | None = None,
-    task_defaults: Callable[[str], dict] | None = None,
-    ignored: Callable[[A], dict[str, str]] | None = None,
-) -> A:
-    """``tyro.cli``, with a parse error reduced to one line (tyro draws a box). ``task_defaults``
-    ``env_id -> {field: value}``: the task's own defaults, for the fields not given in ``argv``
-    (in any spelling) nor ``ignored(args)`` (``{flag: why}``, the flags the run would ignore);
-    one line says which were taken."""
+def parse_args(args_class: type[A], argv: list[str] | None = None, prog: str | None = None) -> A:
+    """``tyro.cli``, with a parse error reduced to one line (tyro draws a box)."""
     if signal.getsignal(signal.SIGINT) is interrupted_while_loading:  # the libraries are loaded
         signal.signal(signal.SIGINT, signal.default_int_handler)
     captured, argv = io.StringIO(), sys.argv[1:] if argv is None else argv
     try:
         with contextlib.redirect_stderr(captured):
-            args = tyro.cli(args_class, args=argv, prog=prog)
+            return tyro.cli(args_class, args=argv, prog=prog)
     except SystemExit as e:
         if e.code:
             fail(parse_error(captured.getvalue()))
         raise
-    skip = {flag(name) for name in given(argv)} | set(ignored(args) if ignored else ())
-    own = task_defaults(args.env_id) if task_defaults else {}
-    own = {k: v for k, v in own.items() if flag(k) not in skip}
-    for name, value in own.items():
-        setattr(args, name, value)
-    if own:
-        typed = {k: " ".join(map(str, np.atleast_1d(v))) for k, v in own.items()}  # tuples too
-        spelled = [flag(k) if v is True else f"{flag(k)} {typed[k]}" for k, v in own.items()]
-        print(f"defaults for {args.env_id}: {', '.join(spelled)}", flush=True)  # as typed
-    return args
+
+
+def spelled(values: dict) -> str:
+    """``{field: value}`` as one would type it: ``--a-b 1.0 1.0, --flag`` (a tuple's values one by one)."""
+    typed = {k: " ".join(map(str, np.atleast_1d(v))) for k, v in values.items()}
+    return ", ".join(flag(k) if v is True else f"{flag(k)} {typed[k]}" for k, v in values.items())
 
 
 EXPECTS = {
@@ -207,7 +193,8 @@ def check_ppo_kl(args) -> None:
     check_non_negative(args, "beta_init")
     if args.kl_early_stop is not None:
         check_positive(args, "kl_early_stop")
-    check_range(args, "gamma", 0.0, 1.0, open_low=True)
+    if args.gamma is not None:  # None: a script fills it in from the task
+        check_range(args, "gamma", 0.0, 1.0, open_low=True)
     check_range(args, "gae_lambda", 0.0, 1.0)
     check_minibatches(args.num_envs * args.num_steps, args.num_minibatches)
 

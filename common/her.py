@@ -74,7 +74,7 @@ def check(args: HerArgs, env_id: str, goal_task: bool) -> str | None:
     that HER is off."""
     if args.her_n_sampled_goal < 0:
         return f"--her-n-sampled-goal must be non-negative, got {args.her_n_sampled_goal}"
-    if goal_task and args.gamma >= 1:  # sparse_return_range: -1 / (1 - gamma)
+    if goal_task and (args.gamma or 0) >= 1:  # sparse_return_range: -1 / (1 - gamma); None: filled in below 1
         return (
             f"--gamma {args.gamma} on a goal task: its returns are bounded by 1 / (1 - gamma), "
             "which needs gamma < 1 (e.g. 0.98)"

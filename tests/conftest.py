@@ -59,16 +59,16 @@ def assert_clean_error(result: subprocess.CompletedProcess, *needles: str) -> No
 
 
 def parse(module, *argv: str):
-    """Parse and check ``argv`` as ``module``'s ``__main__`` does (a script with task_defaults:
-    its task defaults, less the ones the run would ignore, ``module.ignored``); the ``Args``."""
+    """Parse and check ``argv`` as ``module``'s ``__main__`` does, then fill in what follows from the task where the
+    script does (the recipe's ``fill_in``); the ``Args``."""
     from common import cli
 
-    argv, task = list(argv), {}
-    if hasattr(module, "task_defaults"):
-        task = dict(task_defaults=module.task_defaults, ignored=module.ignored)
-    args = cli.parse_args(module.Args, argv, **task)
+    argv = list(argv)
+    args = cli.parse_args(module.Args, argv)
     takes_argv = len(inspect.signature(module.check_args).parameters) > 1  # ppo_kl's: args only
     module.check_args(*(args, argv)[: 1 + takes_argv])
+    if hasattr(module, "fill_in"):
+        module.fill_in(args)
     return args
 
 

@@ -127,7 +127,7 @@ def test_the_goals_suite_runs_the_recipes_defaults_then_with_no_flag_but_the_bud
 
 
 def test_the_one_recipe_suite_runs_every_goal_task_with_no_flag_but_the_budget():
-    """The defaults as task_defaults derives them, on seeds that chose nothing (401-403): each
+    """The defaults, the task's filled in by fill_in, on seeds that chose nothing (401-403): each
     goal task at its budget, evaluated every 10,000 steps on 50 episodes, resumable, no other
     flag."""
     runs = suites.suite_runs("one_recipe")
@@ -152,6 +152,7 @@ def test_the_fetch_and_goals_suites_still_run_what_ran():
     page still run what they report."""
     import ipg_her_recipe as recipe
 
+    args_then = dict(gamma=0.98, grasped_start=0.0)  # the Args defaults then that differ from today's, besides RECIPE's
     recipe_then = dict(hidden=256, target_std=1.0, normalization="paper", action_l2=1.0, twin_critic=True)
     rows_then = {
         "FetchPickAndPlace-v4": recipe_then | dict(grasped_start=0.5, target_std=(1.0, 1.0, 1.0, 0.3)),
@@ -161,8 +162,38 @@ def test_the_fetch_and_goals_suites_still_run_what_ran():
     assert len(runs) == 67
     for r in runs:
         argv = ["--env-id", r.env_id, *r.flags]
-        now = cli.parse_args(recipe.Args, argv, task_defaults=recipe.task_defaults, ignored=recipe.ignored)
-        then = cli.parse_args(recipe.Args, argv, ignored=recipe.ignored, task_defaults=lambda e: rows_then.get(e, recipe_then))
+        now = cli.parse_args(recipe.Args, argv)
+        recipe.fill_in(now)  # as the script's main does
+        then = cli.parse_args(recipe.Args, argv)
+        given = cli.given(argv)
+        for name, value in (args_then | rows_then.get(r.env_id, recipe_then)).items():
+            if name not in given:
+                setattr(then, name, value)
+        assert vars(now) == vars(then), (r.name, r.env_id)
+
+
+def test_the_recipes_runs_in_every_suite_still_run_what_ran():
+    """Before its defaults were its Args' fields, the recipe's Args had ipg_her.py's (64 wide, unbiased, no action
+    penalty, one critic, gamma 0.98, no sigma rule, no grasped starts), and a goal task took its task defaults on top,
+    which fill_in and the fields give now. Every recipe run on a task without goals (Hopper), parsed as the script
+    parses it now, gets what those Args gave it."""
+    import ipg_her_recipe as recipe
+
+    then_defaults = dict(
+        hidden=64, normalization="unbiased", action_l2=0.0, twin_critic=False, gamma=0.98, target_std=None, grasped_start=0.0
+    )
+    runs = [r for suite in suites.SUITES for r in suites.suite_runs(suite) if r.script == "ipg_her_recipe.py"]
+    hopper = [r for r in runs if r.env_id.startswith("Hopper")]
+    assert len(hopper) >= 10
+    for r in hopper:
+        argv = ["--env-id", r.env_id, *r.flags]
+        now = cli.parse_args(recipe.Args, argv)
+        recipe.fill_in(now)
+        then = cli.parse_args(recipe.Args, argv)
+        given = cli.given(argv)
+        for name, value in then_defaults.items():
+            if name not in given:
+                setattr(then, name, value)
         assert vars(now) == vars(then), (r.name, r.env_id)
 
 
@@ -257,7 +288,8 @@ def test_the_hopper_suite_runs_both_ends_on_fresh_seeds_and_nu_1_to_1m_on_a_seed
     narrow = [*short, "--kl-target", "0.9", "--bounds-loss", "1.0"]
     narrow[narrow.index("--target-std") + 1] = "0.1"
     assert flags["ipg_td3_narrow_nu1.0_300k"] == narrow
-    assert flags["ipg_td3_paper_nu1.0_300k"] == [*narrow, "--normalization", "paper"]
+    narrow[narrow.index("--normalization") + 1] = "paper"
+    assert flags["ipg_td3_paper_nu1.0_300k"] == narrow
     for f in (short, long):  # the budget is the only pair that differs
         del f[f.index("--total-timesteps") : f.index("--total-timesteps") + 2]
     assert short == long and "--resume-freq" in long
@@ -286,11 +318,8 @@ def test_every_suite_command_passes_its_scripts_checks(monkeypatch):
         for r in suites.suite_runs(suite):
             module = scripts[r.script]
             argv = ["--env-id", r.env_id, "--seed", str(r.seed), *r.flags]
-            kwargs = {}  # the recipe parses as its main does: its tasks' own defaults
-            if module is ipg_her_recipe:
-                kwargs = {"task_defaults": module.task_defaults, "ignored": module.ignored}
             try:
-                args = cli.parse_args(module.Args, argv, **kwargs)
+                args = cli.parse_args(module.Args, argv)
                 params = module.check_args.__code__.co_argcount
                 module.check_args(*(args, argv)[:params])
             except SystemExit:

@@ -196,9 +196,11 @@ def test_the_recipes_flags_are_not_the_papers(capsys):
     """ipg_her.py is the paper's IPG+HER: each flag of the recipe is an unrecognized option
     there (and the recipe is ipg_her.py's flags plus its own)."""
     assert RECIPE_ONLY == ["action_l2", "bounds_loss", "grasped_start", "target_std", "twin_critic"]
-    papers = [(f.name, f.default) for f in dataclasses.fields(ipg_her.Args)]
-    assert set(papers) <= {(f.name, f.default) for f in dataclasses.fields(ipg_her_recipe.Args)}
-    assert not hasattr(ipg_her, "task_defaults") and not hasattr(ipg_her, "sigma_rule")
+    papers = {f.name: f.default for f in dataclasses.fields(ipg_her.Args)}
+    recipes = {f.name: f.default for f in dataclasses.fields(ipg_her_recipe.Args)}
+    changed = {name for name in papers if papers[name] != recipes[name]}
+    assert changed == {"gamma", "hidden", "normalization"}  # the recipe's own defaults, in its --help
+    assert not hasattr(ipg_her, "fill_in") and not hasattr(ipg_her, "sigma_rule")
     for name in RECIPE_ONLY:
         line = refused(capsys, ipg_her, cli.flag(name))
         assert line.startswith(f"error: unrecognized option {cli.flag(name)}"), line
@@ -222,8 +224,8 @@ def test_defaults_pass_the_checks(capsys, script):
         args = parse(module)
     except SystemExit:
         pytest.fail(f"the defaults are refused: {capsys.readouterr().err.strip()}")
-    task = module.task_defaults(args.env_id) if hasattr(module, "task_defaults") else {}
-    assert vars(args) == vars(module.Args()) | task
+    filled = module.fill_in(module.Args()) if hasattr(module, "fill_in") else {}
+    assert vars(args) == vars(module.Args()) | filled
 
 
 @pytest.mark.parametrize("module", [ipg_her, ipg_her_recipe], ids=["ipg_her", "ipg_her_recipe"])
@@ -320,20 +322,20 @@ def test_a_renderer_that_cannot_load_is_refused_before_training(tmp_path):
     assert not tmp_path.exists() or not run_dirs(tmp_path)
 
 
-def test_a_goal_tasks_defaults_follow_from_the_task_and_a_flag_given_wins(capsys):
-    """ipg_her_recipe.py's task_defaults, one rule for every goal task and no row for any: the
-    RECIPE, sigma min(1, 2 / sqrt(d)) on each of d action dimensions, gamma 1 - 1/H for H-step
-    episodes, grasped starts where the gripper can hold the object; a flag given wins, a task
-    without goals keeps the Args defaults; one line names what was taken."""
-
-    def parse(*argv):
-        return cli.parse_args(ipg_her_recipe.Args, list(argv), task_defaults=ipg_her_recipe.task_defaults)
-
-    push = parse("--env-id", "FetchPush-v4", "--hidden=64")
-    taken = (push.hidden, push.target_std, push.gamma, push.grasped_start, push.action_l2)
-    assert taken == (64, (1.0,) * 4, 0.98, 0.0, 1.0)
-    line = "FetchPush-v4: --normalization paper, --action-l2 1.0, --twin-critic, --target-std 1.0 1.0 1.0 1.0, --gamma 0.98\n"
-    assert capsys.readouterr().out.endswith(line)  # spelled as one would type them
+def test_what_follows_from_the_task_is_filled_in_where_help_says_none_and_a_flag_given_wins():
+    """ipg_her_recipe.py's defaults are its Args' (its --help); three fields default to None, "filled in at start" by
+    ``fill_in`` from the task, one rule for every task and no row for any: sigma min(1, 2 / sqrt(d)) on each of d action
+    dimensions, gamma 1 - 1/H for H-step episodes, grasped starts where the gripper can hold the object. A flag given
+    wins; nothing else changes."""
+    nones = {f.name for f in dataclasses.fields(ipg_her_recipe.Args) if f.default is None}
+    papers = {f.name for f in dataclasses.fields(ipg_her.Args) if f.default is None}
+    assert nones - papers == {"gamma", "target_std", "grasped_start"}
+    help_text = " ".join(
+        subprocess.run(
+            [sys.executable, str(ROOT / "ipg_her_recipe.py"), "--help"], capture_output=True, text=True
+        ).stdout.split()
+    )
+    assert help_text.count("filled in at start") == 3  # each of the three says so in --help
     own = {  # d action dimensions, H steps an episode, whether the object can be held
         "FetchReach-v4": ((1.0,) * 4, 0.98, 0.0),
         "FetchPickAndPlace-v4": ((1.0,) * 4, 0.98, 0.5),
@@ -341,17 +343,26 @@ def test_a_goal_tasks_defaults_follow_from_the_task_and_a_flag_given_wins(capsys
         "HandReach-v3": ((0.447,) * 20, 0.98, 0.0),  # 2 / sqrt(20)
         "HandManipulateBlockRotateZ-v1": ((0.447,) * 20, 0.99, 0.0),  # 100 steps
         "PointMaze_Medium-v3": ((1.0, 1.0), 1 - 1 / 600, 0.0),
+        "Hopper-v5": ((1.0,) * 3, 1 - 1 / 1000, 0.0),  # the same rule on a task without goals
     }
     for env_id, (target_std, gamma, grasped_start) in own.items():
-        computed = dict(target_std=target_std, gamma=gamma, grasped_start=grasped_start)
-        assert vars(parse("--env-id", env_id)) == vars(ipg_her_recipe.Args(env_id=env_id)) | (ipg_her_recipe.RECIPE | computed)
-        assert capsys.readouterr().out.startswith(f"defaults for {env_id}: --hidden 256,")
-    assert vars(parse("--env-id", "Hopper-v5")) == vars(ipg_her_recipe.Args(env_id="Hopper-v5"))
-    assert capsys.readouterr().out == ""
-    assert parse("--env-id", "FetchPush-v4").twin_critic  # a boolean default of the task's
-    assert not parse("--env-id", "FetchPush-v4", "--no-twin-critic").twin_critic  # the flag wins
-    assert parse("--env-id", "FetchPush-v4", "--target-std", "0.3").target_std == 0.3
-    assert not hasattr(ipg_her_recipe, "TASK_DEFAULTS")  # no task has a row of its own
+        args = ipg_her_recipe.Args(env_id=env_id)
+        filled = ipg_her_recipe.fill_in(args)
+        assert filled == dict(target_std=target_std, gamma=gamma, grasped_start=grasped_start), env_id
+        assert vars(args) == vars(ipg_her_recipe.Args(env_id=env_id)) | filled
+    given = ipg_her_recipe.Args(env_id="FetchPickAndPlace-v4", gamma=0.95, target_std=0.3, grasped_start=0.0)
+    assert ipg_her_recipe.fill_in(given) == {} and (given.gamma, given.target_std, given.grasped_start) == (0.95, 0.3, 0.0)
+    assert cli.spelled({"target_std": (1.0, 0.3), "twin_critic": True, "gamma": 0.98}) == (
+        "--target-std 1.0 0.3, --twin-critic, --gamma 0.98"
+    )  # the line the script prints, as one would type it
+
+
+def test_the_script_prints_what_it_filled_in(tmp_path):
+    """The main section prints the task's values it filled in, as one would type them, before the run."""
+    flags = ("--env-id", "FetchPush-v4", "--gamma", "0.95", "--total-timesteps", "100", "--eval-freq", "0")
+    result = run_script("ipg_her_recipe.py", tmp_path, *flags, "--learning-starts", "0", "--critic-steps", "1")
+    assert result.returncode == 0, result.stderr
+    assert "filled in from FetchPush-v4: --target-std 1.0 1.0 1.0 1.0, --grasped-start 0.0\n" in result.stdout
 
 
 IPG = {"ipg_her": ipg_her, "ipg_her_recipe": ipg_her_recipe}  # the recipe keeps IPG's checks
@@ -375,9 +386,7 @@ def test_a_flag_given_in_any_spelling_beats_the_tasks_default(capsys, argv, fiel
     for typed in argv:
         args = parse(ipg_her_recipe, *PUSH, *typed.split())
         assert getattr(args, field) == value
-        line = capsys.readouterr().out.strip().splitlines()[0]
-        assert line.startswith("defaults for FetchPush-v4: --hidden 256, ")
-        assert cli.flag(field) not in line  # not called the task's own
+        assert ipg_her_recipe.fill_in(args) == {}  # nothing left to fill in
 
 
 @pytest.mark.parametrize("typed", ["--twin_critic", "--no-twin-critic", "--no_twin_critic", "--no-twin_critic"])
@@ -501,16 +510,6 @@ def test_qprop_without_advantage_normalisation_refuses_a_normalization_mode(caps
     assert line.startswith("error: --normalization would be ignored (--no-norm-adv")
 
 
-def test_task_defaults_the_run_would_ignore_are_neither_applied_nor_printed(capsys):
-    args = parse(ipg_her_recipe, *PUSH, "--nu", "0")
-    assert capsys.readouterr().out == ("defaults for FetchPush-v4: --hidden 256, --target-std 1.0 1.0 1.0 1.0, --gamma 0.98\n")
-    assert (args.twin_critic, args.action_l2, args.normalization) == (False, 0.0, "unbiased")
-    assert (args.hidden, args.target_std) == (256, (1.0,) * 4)  # the policy's: applied
-    args = parse(ipg_her_recipe, *PUSH, "--nu", "0", "--use-cv")  # the critic counts again
-    assert "--action-l2 1.0, --twin-critic" in capsys.readouterr().out
-    assert args.twin_critic and args.action_l2 == 1.0
-
-
 def test_nu_0_trains_no_critic_and_a_task_without_goals_says_hindsight_is_off(tmp_path):
     """At nu = 0 without control variate nothing uses the critic: it does not train and the
     ipg/* diagnostics, which need it, are not measured; Hopper has no goals: one line says that
@@ -570,7 +569,7 @@ def test_a_tuple_of_floats_refuses_nan_and_none_stays_allowed(capsys):
     line = refused(capsys, ipg_her_recipe, "--target-std", "1", "nan", "1", "1")
     assert line == "error: --target-std must be a finite number, got 1.0 nan 1.0 1.0"
     assert parse(ppo_kl, "--kl-early-stop", "None").kl_early_stop is None
-    assert parse(ipg_her_recipe, "--target-std", "None").target_std is None
+    assert parse(ipg_her_recipe, "--target-std", "None").target_std == (1.0,) * 4  # None: filled in from the task
 
 
 @pytest.mark.parametrize(
@@ -693,11 +692,7 @@ def test_ipg_on_a_task_without_goals_says_hindsight_is_off(capsys, script):
     parse(IPG[script], "--env-id", "Hopper-v5")
     assert capsys.readouterr().out == "Hopper-v5 has no goals: hindsight relabelling (HER) is off\n"
     parse(IPG[script], "--env-id", "FetchReach-v4")
-    recipe = (
-        "defaults for FetchReach-v4: --hidden 256, --normalization paper, --action-l2 1.0, "
-        "--twin-critic, --target-std 1.0 1.0 1.0 1.0, --gamma 0.98\n"
-    )
-    assert capsys.readouterr().out == (recipe if script == "ipg_her_recipe" else "")
+    assert capsys.readouterr().out == ""
 
 
 def test_parsing_hands_ctrl_c_back_to_python_once_the_libraries_are_loaded():

@@ -311,15 +311,18 @@ def test_update_direction_is_a_positive_multiple_of_eq_10(nu, use_cv, module):
     g_off = grad(-qf(b["obs"], agent.actor_mean(b["obs"])).mean())
     expected = ((1 - nu) * g_on + (1.0 if use_cv else nu) * g_off) / sigma
 
+    recipe = {"action_l2": 0.0} if hasattr(module.Args, "action_l2") else {}  # eq. 10 alone: no action penalty
     args = module.Args(
         nu=nu,
         use_cv=use_cv,
         q_bar="mean",
         off_policy_states="batch",
+        normalization="unbiased",
         num_minibatches=1,
         update_epochs=1,
         vf_coef=0.0,
         max_grad_norm=1e9,
+        **recipe,
     )
     before = torch.cat([p.detach().flatten() for p in agent.actor_parameters()])
     module.ipg_update(agent, torch.optim.SGD(agent.parameters(), lr=1.0), b, 0.0, args, qf)

@@ -49,7 +49,7 @@ def test_the_recipe_learns_a_goal_task_of_your_own(tmp_path):
         timeout=300,
     )
     assert result.returncode == 0, result.stderr
-    assert "defaults for tests.point_goal:PointGoal-v0: --hidden 256," in result.stdout
+    assert "filled in from tests.point_goal:PointGoal-v0: --target-std" in result.stdout
     (run_dir,) = run_dirs(tmp_path)
     assert run_dir.name.startswith("PointGoal-v0__ipg_her_recipe__1__")  # the task, not its module
     success = scalars(run_dir)["eval/success_rate"][-1][1]

@@ -131,7 +131,7 @@ CONFIGS = {
         "0",
     ),
     # the hard-task recipe: each Fetch task with the defaults it had when they were recorded
-    # (RECIPE and its row, before task_defaults computed them), Hopper's nu = 1 regime
+    # (its fixed part and its row, before they were read off the task), Hopper's nu = 1 regime
     **{
         f"recipe_{task.lower()}": (
             "ipg_her_recipe.py",
@@ -176,6 +176,10 @@ CONFIGS = {
         "--tau",
         "0.005",
         "--twin-critic",
+        "--hidden",
+        "64",
+        "--action-l2",
+        "0.0",
         "--target-std",
         "0.1",
         "--kl-target",
