@@ -144,6 +144,10 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     """weight of the penalty mean((mu(s) beyond the action bounds)^2) (rl_games' bounds loss)"""
     twin_critic: bool = True
     """two critics, the target the smaller of their Q_w' (TD3's clipped double Q)"""
+    target_std_decay: float = 1.0
+    """the sigma rule's targets go geometrically to this multiple of --target-std (1: held; DrQ-v2 anneals 1 -> 0.1)"""
+    target_std_decay_steps: int = 100_000
+    """environment steps the targets take to get there, then held"""
 
 
 def check_args(args: Args, argv: list[str]) -> None:
@@ -152,6 +156,8 @@ def check_args(args: Args, argv: list[str]) -> None:
     cli.check_ppo_kl(args)
     cli.check_range(args, "nu", 0.0, 1.0)
     cli.check_non_negative(args, "critic_steps", "learning_starts", "action_l2", "bounds_loss")
+    cli.check_range(args, "target_std_decay", 0.0, 1.0, open_low=True)
+    cli.check_positive(args, "target_std_decay_steps")
     critic_flags = "--critic-learning-rate --critic-batch-size --critic-steps --tau --buffer-size --learning-starts --q-bar "
     critic_flags += f"--off-policy-states --off-policy-batch-size --normalization --diagnostics-every {her.FLAGS}"
     critic_flags += " --action-l2 --bounds-loss --twin-critic"
@@ -161,6 +167,7 @@ def check_args(args: Args, argv: list[str]) -> None:
         (args.off_policy_states == "batch", "--off-policy-batch-size", "--off-policy-states batch"),
         (args.nu == 1 and args.use_cv, "--use-cv", "at --nu 1 its on-policy term has weight 0"),
         (no_critic, critic_flags, "at --nu 0 without --use-cv no term uses the critic"),
+        (args.target_std_decay == 1, "--target-std-decay-steps", "--target-std-decay 1 holds the targets"),
     )
     cli.refuse_ignored(argv, ignored)
     cli.check_positive(args, "critic_learning_rate", "critic_batch_size", "buffer_size")
@@ -504,6 +511,11 @@ def ipg_update(
     return min(max(beta, BETA_MIN), BETA_MAX), stats
 
 
+def annealed(target_std, decay: float, progress: float):
+    """The sigma rule's target(s) ``target_std`` times ``decay ** min(1, progress)``: geometric from 1 to ``decay``."""
+    return target_std if decay == 1 else np.asarray(target_std) * decay ** min(1.0, progress)
+
+
 def sigma_rule(alpha, entropy: float, log_std: np.ndarray, target_std):
     """SAC's alpha rule (Haarnoja 2018, eq. 18), two-sided: alpha += 0.01 (H_target - H(pi))."""
     if np.ndim(target_std):  # H(N(0, t_i^2)) - H(pi_i) = log t_i - log sigma_i
@@ -612,7 +624,8 @@ if __name__ == "__main__":
             critic = qf if critic_ready else None
             beta, stats = ipg_update(agent, optimizer, batch, beta, args, critic, replay, alpha)
             stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}
-            if args.target_std is not None:  # the sigma rule: SAC's eq. 18, two-sided (docs)
-                log_std = agent.actor_logstd.detach().numpy()[0]
-                alpha = sigma_rule(alpha, stats["charts/policy_entropy"], log_std, args.target_std)
+            # the sigma rule: SAC's eq. 18, two-sided (docs), towards targets that decay over training
+            target_std = annealed(args.target_std, args.target_std_decay, global_step / args.target_std_decay_steps)
+            log_std = agent.actor_logstd.detach().numpy()[0]
+            alpha = sigma_rule(alpha, stats["charts/policy_entropy"], log_std, target_std)
             run.end_iteration(stats, beta=beta, alpha=alpha)  # TRY NOT TO MODIFY: log, save

@@ -26,6 +26,8 @@ the suite's seeds or its own; ``--seeds`` replaces them):
   summed and one rule per joint (chosen on seed 11).
 - ``one_recipe``: the defaults, the task's filled in by ``fill_in``, no flag but the
   budget, on all six goal tasks at their budgets, seeds 401-403, which chose nothing.
+- ``one_set``: tuning runs on seeds 11-13 for one set of defaults that earns every goal task,
+  each candidate exploration mechanism on the tasks that pull apart; they choose, never report.
 
 ``benchmarks/run.py`` runs a suite (``suite_runs``); ``benchmarks/report.py`` shows it as its
 ``Report`` says.
@@ -174,6 +176,7 @@ PICK_ROW = ("--target-std", "1.0", "1.0", "1.0", "0.3")
 SLIDE_ROW = ("--target-std", "0.3", "0.3", "0.3", "1.0", "--action-l2", "0.0", "--bounds-loss", "1.0")  # and --anneal-lr
 PICK_ONE_SIGMA = ("--total-timesteps", "500000", *FETCH_EVERY, *SUMMED)
 SLIDE_CONSTLR = ("--total-timesteps", "1000000", *FETCH_EVERY, "--no-anneal-lr")
+DECAY03 = ("--target-std-decay", "0.3", "--target-std-decay-steps", "100000")
 PUSH_BUDGET = ("--total-timesteps", "{steps}", "--eval-freq", "25000", "--resume-freq", "50000")
 TINY = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4", "--update-epochs", "2", "--eval-episodes", "1")
 TINY_IPG = ("--total-timesteps", "300", "--critic-steps", "4", "--eval-freq", "100", "--eval-episodes", "2")
@@ -445,6 +448,19 @@ SUITES: dict[str, Suite] = {
                 ("PointMaze_Medium-v3", 300_000),
                 ("HandManipulateBlockRotateZ-v1", 1_000_000),
             )
+        ],
+    ),
+    # tuning runs for one set of defaults that earns every goal task (seeds 11-13 choose; none of these reports):
+    # each candidate exploration mechanism on the tasks that pull apart, at screening budgets
+    "one_set": Suite(
+        (11,),
+        Report(per_episode=False, median=True, levels=(0.5, 0.7, 0.9), budgets=(100_000, 150_000, 300_000, 500_000)),
+        [
+            # the sigma rule's targets decay geometrically to 0.3 of the rule's over the first 100k steps
+            *[
+                (f"decay03_{steps // 1000}k", RECIPE, env_id, ("--total-timesteps", str(steps), *FETCH_EVERY, *DECAY03))
+                for env_id, steps in ((PUSH, 300_000), (SLIDE, 500_000), (PICK, 300_000))
+            ],
         ],
     ),
     "quick": Suite(

@@ -195,7 +195,15 @@ RECIPE_ONLY = sorted(
 def test_the_recipes_flags_are_not_the_papers(capsys):
     """ipg_her.py is the paper's IPG+HER: each flag of the recipe is an unrecognized option
     there (and the recipe is ipg_her.py's flags plus its own)."""
-    assert RECIPE_ONLY == ["action_l2", "bounds_loss", "grasped_start", "target_std", "twin_critic"]
+    assert RECIPE_ONLY == [
+        "action_l2",
+        "bounds_loss",
+        "grasped_start",
+        "target_std",
+        "target_std_decay",
+        "target_std_decay_steps",
+        "twin_critic",
+    ]
     papers = {f.name: f.default for f in dataclasses.fields(ipg_her.Args)}
     recipes = {f.name: f.default for f in dataclasses.fields(ipg_her_recipe.Args)}
     changed = {name for name in papers if papers[name] != recipes[name]}
