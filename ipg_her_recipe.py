@@ -626,6 +626,5 @@ if __name__ == "__main__":
             stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}
             # the sigma rule: SAC's eq. 18, two-sided (docs), towards targets that decay over training
             target_std = annealed(args.target_std, args.target_std_decay, global_step / args.target_std_decay_steps)
-            log_std = agent.actor_logstd.detach().numpy()[0]
-            alpha = sigma_rule(alpha, stats["charts/policy_entropy"], log_std, target_std)
+            alpha = sigma_rule(alpha, stats["charts/policy_entropy"], agent.actor_logstd.detach().numpy()[0], target_std)
             run.end_iteration(stats, beta=beta, alpha=alpha)  # TRY NOT TO MODIFY: log, save
