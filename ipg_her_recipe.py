@@ -403,14 +403,14 @@ def ipg_loss(
 
 
 def learning_signal(batch: dict, args: Args):
-    """The update's weights: the signal, normalised; its raw std; the critic term's b and scale."""
+    """The update's weights by name: ``adv`` (normalised) and its raw ``std``; the critic term's b and scale."""
     adv = batch["advantages"] - batch["cv"] if "cv" in batch else batch["advantages"]  # A_hat, or A_hat - A_bar (eq. 9)
     off_scale, signal_std = 1.0, adv.std()
     if args.norm_adv:
         adv = (adv - adv.mean()) / (signal_std + 1e-8)
         if args.normalization == "unbiased":
             off_scale = 1.0 / (signal_std.item() + 1e-8)  # the same 1/sigma on both terms
-    return adv, signal_std, 1.0 if args.use_cv else args.nu, off_scale
+    return dict(adv=adv, std=signal_std, off_weight=1.0 if args.use_cv else args.nu, off_scale=off_scale)
 
 
 # DIAGNOSTICS: the mixture, measured on the batch before the update
@@ -425,10 +425,10 @@ def interpolation_report(agent: Agent, qf: QNetwork, batch: dict, args: Args, re
     cv = batch["cv"] if args.use_cv else control_variate(qf, agent, batch["obs"], batch["actions"])
     off_states = batch["obs"] if args.off_policy_states == "batch" else replay(1, run.diagnostics_rng)[0]["obs"]
     params = agent.actor_parameters()
-    signal, _, off_weight, off_scale = learning_signal(batch, args)
-    on_term, off_term = ipg_loss(agent, qf, agent.dist(batch["obs"]), batch, signal, off_states, args.q_bar, generator)
+    signal = learning_signal(batch, args)
+    on_term, off_term = ipg_loss(agent, qf, agent.dist(batch["obs"]), batch, signal["adv"], off_states, args.q_bar, generator)
     on = (1.0 - args.nu) * diagnostics.flat_grad(on_term, params).norm().item()
-    off = off_weight * diagnostics.flat_grad(off_term * off_scale, params).norm().item()
+    off = signal["off_weight"] * diagnostics.flat_grad(off_term * signal["off_scale"], params).norm().item()
 
     def estimate(mb: dict, with_cv: bool):  # eq. 8 at eta = 1 or 0, on the raw scale
         adv = mb["advantages"] - mb["cv"] if with_cv else mb["advantages"]
@@ -453,8 +453,8 @@ def ipg_update(
     """Eq. 10 inside eq. 5: ``update_epochs`` passes of Adam, then the beta rule."""
     batch_size = batch["obs"].shape[0]
     minibatch_size = batch_size // args.num_minibatches
-    adv, signal_std, off_weight, off_scale = learning_signal(batch, args)
-    use_off_policy = qf is not None and off_weight > 0
+    signal = learning_signal(batch, args)
+    use_off_policy = qf is not None and signal["off_weight"] > 0
     from_replay = use_off_policy and args.off_policy_states == "replay"
     replayed = iter(replay(args.update_epochs * args.num_minibatches) if from_replay else ())
     pi_old = Normal(batch["mean"], batch["std"])
@@ -462,14 +462,14 @@ def ipg_update(
     for epoch in range(args.update_epochs):
         perm = torch.randperm(batch_size)
         keys = ("obs", "actions", "logprobs", "mean", "std", "returns")
-        shuffled = {key: batch[key][perm] for key in keys} | {"adv": adv[perm]}
+        shuffled = {key: batch[key][perm] for key in keys} | {"adv": signal["adv"][perm]}
         for start in range(0, batch_size, minibatch_size):
             mb = {key: v[start : start + minibatch_size] for key, v in shuffled.items()}
             pi = agent.dist(mb["obs"])
             kl = kl_divergence(Normal(mb["mean"], mb["std"]), pi).sum(-1).mean()
             s_off = next(replayed)["obs"] if from_replay else mb["obs"] if use_off_policy else None
             on_term, off_term = ipg_loss(agent, qf, pi, mb, mb["adv"] if args.nu < 1 else None, s_off, args.q_bar)
-            pg_loss = beta * kl + (1.0 - args.nu) * on_term + off_weight * off_scale * off_term
+            pg_loss = beta * kl + (1.0 - args.nu) * on_term + signal["off_weight"] * signal["off_scale"] * off_term
             if s_off is not None and (args.action_l2 or args.bounds_loss):
                 mu = agent.actor_mean(s_off)  # OpenAI's HER: l2 mu(s)^2; rl_games: beyond bounds
                 beyond = mu - mu.clamp(qf.low, qf.high)  # zero inside: there Q_w's gradient lives
@@ -498,7 +498,7 @@ def ipg_update(
         "losses/beta": beta,
         "losses/epochs": epoch + 1,
         "charts/policy_entropy": entropy,
-        "ipg/signal_std": signal_std.item(),
+        "ipg/signal_std": signal["std"].item(),
         "ipg/on_policy_term": on_term.item(),
         "ipg/nu": args.nu,
         "ipg/off_policy_term": off_term.item(),

@@ -328,8 +328,8 @@ def qprop_loss(agent: Agent, qf: QNetwork, pi: Normal, mb: dict, analytic_scale:
 
 
 def learning_signal(batch: dict, args: Args):
-    """The update's weights: the learning signal, normalised, its raw std sigma, and the critic's
-    term's weights: eta (the signal is A_hat - eta A_bar) and its scale (``normalization``)."""
+    """The update's weights by name: the learning signal ``adv``, normalised, its raw ``std`` sigma, and the critic's
+    term's weights: ``eta`` (the signal is A_hat - eta A_bar) and its scale (``normalization``)."""
     eta = batch["eta"] if "eta" in batch else torch.zeros_like(batch["advantages"])
     adv = batch["advantages"]
     adv = adv - eta * batch["cv"] if "cv" in batch else adv  # A_hat - eta A_bar
@@ -338,7 +338,7 @@ def learning_signal(batch: dict, args: Args):
         adv = (adv - adv.mean()) / (signal_std + 1e-8)
         if args.normalization == "unbiased":
             analytic_scale = 1.0 / (signal_std.item() + 1e-8)  # the same 1/sigma on both terms
-    return adv, signal_std, eta, analytic_scale
+    return dict(adv=adv, std=signal_std, eta=eta, analytic_scale=analytic_scale)
 
 
 # DIAGNOSTICS: does the control variate reduce variance? Measured before the update
@@ -363,17 +363,17 @@ def qprop_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: fl
     statistics."""
     batch_size = batch["obs"].shape[0]
     minibatch_size = batch_size // args.num_minibatches
-    adv, signal_std, eta, analytic_scale = learning_signal(batch, args)
+    signal = learning_signal(batch, args)
     pi_old = Normal(batch["mean"], batch["std"])
     actor_params, critic_params = agent.actor_parameters(), list(agent.critic.parameters())
     for epoch in range(args.update_epochs):
         perm = torch.randperm(batch_size)
         keys = ("obs", "actions", "logprobs", "mean", "std", "returns")
-        shuffled = {key: batch[key][perm] for key in keys} | {"adv": adv[perm], "eta": eta[perm]}
+        shuffled = {key: batch[key][perm] for key in keys} | {"adv": signal["adv"][perm], "eta": signal["eta"][perm]}
         for start in range(0, batch_size, minibatch_size):
             mb = {key: v[start : start + minibatch_size] for key, v in shuffled.items()}
             pi = agent.dist(mb["obs"])
-            surrogate = qprop_loss(agent, qf, pi, mb, analytic_scale)  # eq. 8, negated
+            surrogate = qprop_loss(agent, qf, pi, mb, signal["analytic_scale"])  # eq. 8, negated
             kl = kl_divergence(Normal(mb["mean"], mb["std"]), pi).sum(-1).mean()
             pg_loss = surrogate + beta * kl  # inside eq. 5
             v_loss = 0.5 * ((agent.get_value(mb["obs"]) - mb["returns"]) ** 2).mean()
@@ -398,7 +398,7 @@ def qprop_update(agent: Agent, optimizer: optim.Optimizer, batch: dict, beta: fl
         "losses/beta": beta,
         "losses/epochs": epoch + 1,
         "charts/policy_entropy": entropy,
-        "qprop/signal_std": signal_std.item(),
+        "qprop/signal_std": signal["std"].item(),
     }
     if d < args.kl_target / 1.5:  # the PPO paper's beta rule (sec. 4)
         beta /= 2
