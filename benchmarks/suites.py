@@ -1,5 +1,8 @@
 """What each benchmark suite runs: one ``Run`` per script x task x seed, from ``SUITES``.
 
+Over 400 lines, and meant to be: it is data, not logic. Every committed export's runs keep their command here, spelled
+out, so that each still runs what it reports (tests/test_benchmarks.py holds them to it); the logic is ``suite_runs``.
+
 The suites (``SUITES``: each its seeds, how report.py shows it, and one row per variant x task, on
 the suite's seeds or its own; ``--seeds`` replaces them):
 
