@@ -462,7 +462,13 @@ SUITES: dict[str, Suite] = {
             # the sigma rule's targets decay geometrically to 0.3 of the rule's over the first 100k steps
             *[
                 (f"decay03_{steps // 1000}k", RECIPE, env_id, ("--total-timesteps", str(steps), *FETCH_EVERY, *DECAY03))
-                for env_id, steps in ((PUSH, 300_000), (SLIDE, 500_000), (PICK, 300_000))
+                for env_id, steps in (
+                    (PUSH, 300_000),
+                    (SLIDE, 500_000),
+                    (PICK, 300_000),
+                    ("HandReach-v3", 300_000),
+                    ("PointMaze_Medium-v3", 300_000),
+                )
             ],
         ],
     ),
