@@ -22,6 +22,8 @@ from common import checkpoint, evaluate, stops
 
 TINY = ("--env-id", "FetchReach-v4", "--total-timesteps", "200", "--eval-freq", "0", "--eval-episodes", "2")
 ENV = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}
+TINY_PPO = "--num-envs 2 --num-steps 64 --total-timesteps 1024 --num-minibatches 2 --update-epochs 1 --eval-freq 0".split()
+TINY_PPO += ["--eval-workers", "0"]  # eight updates of 128 steps, no evaluation before the end
 
 
 def start(log_dir, *flags, **popen):
@@ -79,20 +81,7 @@ def test_a_nan_stop_keeps_the_good_model_and_evaluate_refuses_a_nan_one(monkeypa
         "ppo_kl.py",
         "--log-dir",
         str(tmp_path),
-        "--num-envs",
-        "2",
-        "--num-steps",
-        "64",
-        "--total-timesteps",
-        "1024",
-        "--num-minibatches",
-        "2",
-        "--update-epochs",
-        "1",
-        "--eval-freq",
-        "0",
-        "--eval-workers",
-        "0",
+        *TINY_PPO,
         "--save-model",
         "--save-freq",
         "256",
@@ -461,20 +450,7 @@ def test_a_run_folder_turned_read_only_stops_in_one_line(monkeypatch, tmp_path, 
         "ppo_kl.py",
         "--log-dir",
         str(tmp_path),
-        "--num-envs",
-        "2",
-        "--num-steps",
-        "64",
-        "--total-timesteps",
-        "1024",
-        "--num-minibatches",
-        "2",
-        "--update-epochs",
-        "1",
-        "--eval-freq",
-        "0",
-        "--eval-workers",
-        "0",
+        *TINY_PPO,
         "--resume-freq",
         "256",
         "--save-model",
