@@ -190,6 +190,7 @@ def test_algorithm_checks(capsys, script, argv, line):
 RECIPE_ONLY = sorted(
     {f.name for f in dataclasses.fields(ipg_her_recipe.Args)} - {f.name for f in dataclasses.fields(ipg_her.Args)}
 )
+TINY_PPO = "--num-envs 2 --num-steps 128 --num-minibatches 2 --update-epochs 1 --eval-freq 0 --eval-episodes 1".split()
 
 
 def test_the_recipes_flags_are_not_the_papers(capsys):
@@ -296,18 +297,7 @@ def test_a_budget_that_is_not_whole_batches_says_what_it_runs(tmp_path):
         "Hopper-v5",
         "--total-timesteps",
         "700",
-        "--num-envs",
-        "2",
-        "--num-steps",
-        "128",
-        "--num-minibatches",
-        "2",
-        "--update-epochs",
-        "1",
-        "--eval-freq",
-        "0",
-        "--eval-episodes",
-        "1",
+        *TINY_PPO,
     )
     result = run_script("ppo_kl.py", tmp_path, *flags)
     assert result.returncode == 0, result.stderr
@@ -529,18 +519,7 @@ def test_nu_0_trains_no_critic_and_a_task_without_goals_says_hindsight_is_off(tm
         "0",
         "--total-timesteps",
         "512",
-        "--num-envs",
-        "2",
-        "--num-steps",
-        "128",
-        "--num-minibatches",
-        "2",
-        "--update-epochs",
-        "1",
-        "--eval-freq",
-        "0",
-        "--eval-episodes",
-        "1",
+        *TINY_PPO,
         "--eval-workers",
         "0",
     )

@@ -22,6 +22,7 @@ from common import checkpoint, evaluate, stops
 
 TINY = ("--env-id", "FetchReach-v4", "--total-timesteps", "200", "--eval-freq", "0", "--eval-episodes", "2")
 ENV = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}
+LONG_REACH = "--env-id FetchReach-v4 --total-timesteps 1000000 --eval-freq 200 --eval-episodes 2 --save-model".split()
 TINY_PPO = "--num-envs 2 --num-steps 64 --total-timesteps 1024 --num-minibatches 2 --update-epochs 1 --eval-freq 0".split()
 TINY_PPO += ["--eval-workers", "0"]  # eight updates of 128 steps, no evaluation before the end
 
@@ -354,15 +355,7 @@ def test_a_closed_terminal_stops_the_run_as_kill_does(tmp_path):
     exit 129, model.pt saved, no leaked semaphore, no multiprocessing temporary folder left."""
     proc, run_dir = start(
         tmp_path / "runs",
-        "--env-id",
-        "FetchReach-v4",
-        "--total-timesteps",
-        "1000000",
-        "--eval-freq",
-        "200",
-        "--eval-episodes",
-        "2",
-        "--save-model",
+        *LONG_REACH,
         env=own_tmp(tmp_path),
         start_new_session=True,
     )
@@ -382,15 +375,7 @@ def test_more_ctrl_c_during_the_clean_up_cannot_cut_it_short(tmp_path):
     ignored in an exit handler, no temporary folder left."""
     proc, run_dir = start(
         tmp_path / "runs",
-        "--env-id",
-        "FetchReach-v4",
-        "--total-timesteps",
-        "1000000",
-        "--eval-freq",
-        "200",
-        "--eval-episodes",
-        "2",
-        "--save-model",
+        *LONG_REACH,
         env=own_tmp(tmp_path),
     )
     until(proc, "evaluation of step")
