@@ -470,6 +470,22 @@ SUITES: dict[str, Suite] = {
                     ("PointMaze_Medium-v3", 300_000),
                 )
             ],
+            # the same with both learning rates annealed to zero over the budget (Slide's late noise floor)
+            *[
+                (
+                    f"decay03_annealed_{steps // 1000}k",
+                    RECIPE,
+                    env_id,
+                    ("--total-timesteps", str(steps), *FETCH_EVERY, *DECAY03, "--anneal-lr"),
+                )
+                for env_id, steps in (
+                    (SLIDE, 1_000_000),
+                    (PUSH, 300_000),
+                    (PICK, 300_000),
+                    ("HandReach-v3", 300_000),
+                    ("PointMaze_Medium-v3", 300_000),
+                )
+            ],
         ],
     ),
     "quick": Suite(
