@@ -480,6 +480,7 @@ SUITES: dict[str, Suite] = {
                 )
                 for env_id, steps in (
                     (SLIDE, 1_000_000),
+                    ("HandManipulateBlockRotateZ-v1", 1_000_000),
                     (PUSH, 300_000),
                     (PICK, 300_000),
                     ("HandReach-v3", 300_000),
