@@ -43,10 +43,15 @@ class EnvsState:
 
 
 def _layers(env) -> list:
-    """An env's wrappers, outermost first, then the task itself."""
+    """An env's wrappers, outermost first, then the task itself, then the envs a layer drives
+    (the mazes' ``point_env``, whose physics is the task's), in the order of their attributes."""
+    import gymnasium as gym
+
     layers = [env]
-    while hasattr(layers[-1], "env"):
-        layers.append(layers[-1].env)
+    for layer in layers:  # grows as it goes
+        inner = [layer.env] if hasattr(layer, "env") else []
+        inner += [v for v in vars(layer).values() if isinstance(v, gym.Env)]
+        layers += [v for v in inner if all(v is not seen for seen in layers)]
     return layers
 
 

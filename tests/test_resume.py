@@ -72,6 +72,7 @@ def vector_env(env_id: str, grasped: float = 0.0):
         ("Hopper-v5", 0.0),
         ("FetchReach-v4", 0.0),
         ("tests.point_goal:PointGoal-v0", 0.0),
+        ("PointMaze_Medium-v3", 0.0),  # its physics in an env of its own (point_env)
         ("FetchPickAndPlace-v4", 0.0),
         ("FetchPickAndPlace-v4", 0.5),
     ],
