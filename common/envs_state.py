@@ -50,8 +50,9 @@ def _layers(env) -> list:
     layers = [env]
     for layer in layers:  # grows as it goes
         inner = [layer.env] if hasattr(layer, "env") else []
-        inner += [v for v in vars(layer).values() if isinstance(v, gym.Env)]
-        layers += [v for v in inner if all(v is not seen for seen in layers)]
+        for v in inner + [v for v in vars(layer).values() if isinstance(v, gym.Env)]:
+            if all(v is not seen for seen in layers):  # once each: a wrapper's env is also among its attributes
+                layers.append(v)
     return layers
 
 

@@ -141,3 +141,17 @@ def test_the_vector_envs_private_observations_are_its_last_ones(env_id):
         ends += int(np.sum(terminated | truncated))
     assert ends > 0  # the autoreset's observations too
     np.testing.assert_array_equal(flat(EnvsState(envs).observations()), flat(returned))
+
+
+def test_each_layer_is_saved_once_and_the_env_a_task_drives_with_them():
+    """The wrappers, the task and the env it drives (the maze's ball, its physics): each once, in that order; a wrapper's
+    env is also among its attributes and must not be saved twice (the resume point would hold its state twice)."""
+    import gymnasium as gym
+
+    from common import tasks
+    from common.envs_state import _layers
+
+    tasks.register_goal_tasks()
+    env = gym.wrappers.RecordEpisodeStatistics(gym.make("PointMaze_Medium-v3"))
+    names = [type(layer).__name__ for layer in _layers(env)]
+    assert names == ["RecordEpisodeStatistics", "TimeLimit", "OrderEnforcing", "PassiveEnvChecker", "PointMazeEnv", "PointEnv"]
