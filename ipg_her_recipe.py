@@ -133,11 +133,9 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
 
     # the recipe
     target_std: float | tuple[float, ...] | None = None
-    """the sigma rule: hold H(pi) at H(N(0, target_std^2)) per action, or one each (None: min(1, 2 / sqrt(d)) on each of
-    the task's d action dimensions, filled in at start)"""
+    """the sigma rule's targets: one sigma per action dimension, or one (None: min(1, 2/sqrt(d)) each; filled in at start)"""
     grasped_start: float | None = None
-    """share of training episodes started with the object in the gripper (None: the HER paper's 0.5 where the gripper can
-    hold the object, else 0; filled in at start)"""
+    """share of episodes begun with the object held (None: 0.5 where the gripper can hold it, else 0; filled in at start)"""
     action_l2: float = 1.0
     """weight of the penalty mean(mu(s)^2) beside the off-policy term (OpenAI's HER: 1)"""
     bounds_loss: float = 0.0

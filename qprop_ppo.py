@@ -86,8 +86,7 @@ class Args(RunArgs):
     eta_mode: Literal["batch-conservative", "batch-aggressive", "conservative", "aggressive", "ones", "none"] = (
         "batch-conservative"
     )
-    """control-variate weight eta: from the batch covariance's sign (unbiased), per sample (the
-    paper's, biased), 1, or none (= PPO-KL)"""
+    """control-variate weight eta: the batch covariance's sign (unbiased), per sample (the paper's, biased), 1, or none"""
     normalization: Literal["paper", "unbiased"] = "unbiased"
     """normalise the learning signal only (paper, biased) or the critic's term with it (unbiased)"""
     buffer_size: int = 1_000_000

@@ -320,6 +320,17 @@ def test_a_renderer_that_cannot_load_is_refused_before_training(tmp_path):
     assert not tmp_path.exists() or not run_dirs(tmp_path)
 
 
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_no_flags_help_breaks_mid_sentence(script):
+    """tyro keeps a field docstring's line breaks in --help, where the terminal's wrapping need not fall: each field's
+    help is one line of source (the fields of common/'s argument classes too)."""
+    from tyro import _docstrings
+
+    args = SCRIPTS[script].Args
+    broken = [f.name for f in dataclasses.fields(args) if "\n" in (_docstrings.get_field_docstring(args, f.name, ()) or "")]
+    assert not broken, f"{script}.py --help breaks these fields' help mid-sentence: {broken}"
+
+
 def test_what_follows_from_the_task_is_filled_in_where_help_says_none_and_a_flag_given_wins():
     """ipg_her_recipe.py's defaults are its Args' (its --help); three fields default to None, "filled in at start" by
     ``fill_in`` from the task, one rule for every task and no row for any: sigma min(1, 2 / sqrt(d)) on each of d action
@@ -329,11 +340,11 @@ def test_what_follows_from_the_task_is_filled_in_where_help_says_none_and_a_flag
     papers = {f.name for f in dataclasses.fields(ipg_her.Args) if f.default is None}
     assert nones - papers == {"gamma", "target_std", "grasped_start"}
     help_text = " ".join(
-        subprocess.run(
-            [sys.executable, str(ROOT / "ipg_her_recipe.py"), "--help"], capture_output=True, text=True
-        ).stdout.split()
+        subprocess.run([sys.executable, str(ROOT / "ipg_her_recipe.py"), "--help"], capture_output=True, text=True)
+        .stdout.replace("│", " ")  # the box's border, between the lines of a wrapped help
+        .split()
     )
-    assert help_text.count("filled in at start") == 3  # each of the three says so in --help
+    assert help_text.count("filled in at start) (default: None)") == 3  # each of the three says so in --help
     own = {  # d action dimensions, H steps an episode, whether the object can be held
         "FetchReach-v4": ((1.0,) * 4, 0.98, 0.0),
         "FetchPickAndPlace-v4": ((1.0,) * 4, 0.98, 0.5),
