@@ -14,14 +14,11 @@ each addition measured on the Fetch tasks: twin critics (TD3, Fujimoto et al. 20
 entropy-targeted sigma (SAC's alpha rule, Haarnoja et al. 2018), an action penalty (OpenAI's HER)
 and a bounds loss (rl_games), annealed learning rates and grasped starts (HER sec. 4.1). Its
 defaults are its Args' (``--help``); three follow from the task and are filled in at start
-(``fill_in``): a sigma rule per action dimension, the horizon's discount and, where an object can
-be held, grasped starts. That rule was chosen on tuning runs on seed 11, not exported
-(docs/investigations/one_recipe.md).
-
-Where these defaults lose, on held-out seeds (docs/results.md): FetchSlide-v4 ends at 0.02 at 1M,
-where --target-std 0.3 0.3 0.3 1 --action-l2 0 --bounds-loss 1 --anneal-lr reached 0.82;
-FetchPickAndPlace-v4 at 0.68 at 500k, where --target-std 1.0 1.0 1.0 0.3 reached 0.96. Pass those
-flags on those tasks.
+(``fill_in``): the sigma rule's targets, one per action dimension, the horizon's discount and,
+where an object can be held, grasped starts. The targets narrow over the first 100k steps to a
+floor and the learning rates anneal: wide exploration while nothing is learnt, narrow where
+precision pays, one set for every goal task, chosen on tuning seeds 11 and 12
+(docs/ipg_her_recipe.md).
 """
 
 import copy
@@ -54,11 +51,8 @@ BETA_MIN, BETA_MAX = 1 / 35, 35.0  # DPPO's bounds on beta: a calm stretch canno
 
 @dataclass
 class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
-    """IPG with HER and a recipe for the harder goal tasks (docs/ipg_her_recipe.md). Its defaults,
-    the task's filled in at start, lose on held-out seeds: FetchSlide-v4 ends
-    at 0.02 at 1M, where --target-std 0.3 0.3 0.3 1 --action-l2 0 --bounds-loss 1 --anneal-lr
-    reached 0.82; FetchPickAndPlace-v4 0.68 at 500k, where --target-std 1.0 1.0 1.0 0.3 reached
-    0.96. Pass those flags there."""
+    """IPG with HER and a recipe for the harder goal tasks (docs/ipg_her_recipe.md); what follows from the task is
+    filled in at start."""
 
     env_id: str = "FetchReach-v4"
     """the id of the gymnasium environment"""
@@ -70,10 +64,10 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     """steps per env per rollout (batch = num_envs * num_steps; 50: a Fetch episode)"""
     learning_rate: float = 1e-3
     """the learning rate of Adam (1e-3: OpenAI's HER recipe)"""
-    anneal_lr: bool = False
+    anneal_lr: bool = True
     """anneal the learning rates (the policy's and the critic's) linearly to zero"""
     gamma: float | None = None
-    """the discount factor gamma (None: 1 - 1/H for the task's H-step episodes, 0.98 without them; filled in at start)"""
+    """the discount factor gamma (None: 1 - 1/H for H-step episodes, at most 0.995, else 0.98; filled in at start)"""
     gae_lambda: float = 0.95
     """lam of GAE (eq. 4)"""
     num_minibatches: int = 1
@@ -142,10 +136,12 @@ class Args(her.HerArgs, RunArgs):  # HER's flags: common/her.py
     """weight of the penalty mean((mu(s) beyond the action bounds)^2) (rl_games' bounds loss)"""
     twin_critic: bool = True
     """two critics, the target the smaller of their Q_w' (TD3's clipped double Q)"""
-    target_std_decay: float = 1.0
+    target_std_decay: float = 0.3
     """the sigma rule's targets go geometrically to this multiple of --target-std (1: held; DrQ-v2 anneals 1 -> 0.1)"""
     target_std_decay_steps: int = 100_000
     """environment steps the targets take to get there, then held"""
+    target_std_floor: float = 0.3
+    """no target decays below this sigma (a target given below it is held)"""
 
 
 def check_args(args: Args, argv: list[str]) -> None:
@@ -156,6 +152,7 @@ def check_args(args: Args, argv: list[str]) -> None:
     cli.check_non_negative(args, "critic_steps", "learning_starts", "action_l2", "bounds_loss")
     cli.check_range(args, "target_std_decay", 0.0, 1.0, open_low=True)
     cli.check_positive(args, "target_std_decay_steps")
+    cli.check_non_negative(args, "target_std_floor")
     critic_flags = "--critic-learning-rate --critic-batch-size --critic-steps --tau --buffer-size --learning-starts --q-bar "
     critic_flags += f"--off-policy-states --off-policy-batch-size --normalization --diagnostics-every {her.FLAGS}"
     critic_flags += " --action-l2 --bounds-loss --twin-critic"
@@ -165,7 +162,7 @@ def check_args(args: Args, argv: list[str]) -> None:
         (args.off_policy_states == "batch", "--off-policy-batch-size", "--off-policy-states batch"),
         (args.nu == 1 and args.use_cv, "--use-cv", "at --nu 1 its on-policy term has weight 0"),
         (no_critic, critic_flags, "at --nu 0 without --use-cv no term uses the critic"),
-        (args.target_std_decay == 1, "--target-std-decay-steps", "--target-std-decay 1 holds the targets"),
+        (args.target_std_decay == 1, "--target-std-decay-steps --target-std-floor", "--target-std-decay 1 holds the targets"),
     )
     cli.refuse_ignored(argv, ignored)
     cli.check_positive(args, "critic_learning_rate", "critic_batch_size", "buffer_size")
@@ -193,12 +190,12 @@ def check_args(args: Args, argv: list[str]) -> None:
 def fill_in(args: Args) -> dict:
     """The values that follow from the task, for the fields left at None (CleanRL's "filled in at runtime"): one sigma
     rule per action dimension at min(1, 2 / sqrt(d)) on its d dimensions (a noise vector of length 2, no dimension's sigma
-    above 1), the discount 1 - 1/H of its H-step episodes (0.98 without them) and grasped starts for half of the episodes
-    where the gripper can hold the object. Returns what it filled in."""
+    above 1), the discount 1 - 1/H of its H-step episodes, at most 0.995 (0.98 without them), and grasped starts for
+    half of the episodes where the gripper can hold the object. Returns what it filled in."""
     env = gym.make(args.env_id)
     d, horizon = env.action_space.shape[0], env.spec.max_episode_steps or 0
     env.close()
-    task = dict(target_std=(round(min(1.0, 2 / d**0.5), 3),) * d, gamma=1 - 1 / horizon if horizon > 1 else 0.98)
+    task = dict(target_std=(round(min(1.0, 2 / d**0.5), 3),) * d, gamma=min(0.995, 1 - 1 / horizon) if horizon > 1 else 0.98)
     task |= dict(grasped_start=0.5 if refusal(args.env_id) is None else 0.0)
     filled = {name: value for name, value in task.items() if getattr(args, name) is None}
     for name, value in filled.items():
@@ -509,9 +506,12 @@ def ipg_update(
     return min(max(beta, BETA_MIN), BETA_MAX), stats
 
 
-def annealed(target_std, decay: float, progress: float):
-    """The sigma rule's target(s) ``target_std`` times ``decay ** min(1, progress)``: geometric from 1 to ``decay``."""
-    return target_std if decay == 1 else np.asarray(target_std) * decay ** min(1.0, progress)
+def annealed(target_std, decay: float, progress: float, floor: float = 0.0):
+    """The sigma rule's target(s) ``target_std`` times ``decay ** min(1, progress)``: geometric from 1 to ``decay``,
+    never below ``floor`` (a target already below it is held)."""
+    if decay == 1:
+        return target_std
+    return np.maximum(np.asarray(target_std) * decay ** min(1.0, progress), np.minimum(target_std, floor))
 
 
 def sigma_rule(alpha, entropy: float, log_std: np.ndarray, target_std):
@@ -623,6 +623,7 @@ if __name__ == "__main__":
             beta, stats = ipg_update(agent, optimizer, batch, beta, args, critic, replay, alpha)
             stats |= {"charts/learning_rate": optimizer.param_groups[0]["lr"]}
             # the sigma rule: SAC's eq. 18, two-sided (docs), towards targets that decay over training
-            target_std = annealed(args.target_std, args.target_std_decay, global_step / args.target_std_decay_steps)
+            progress = global_step / args.target_std_decay_steps
+            target_std = annealed(args.target_std, args.target_std_decay, progress, args.target_std_floor)
             alpha = sigma_rule(alpha, stats["charts/policy_entropy"], agent.actor_logstd.detach().numpy()[0], target_std)
             run.end_iteration(stats, beta=beta, alpha=alpha)  # TRY NOT TO MODIFY: log, save

@@ -46,7 +46,20 @@ WANDB = "wandb==0.31.0"  # --track's, as requirements-test.txt pins it
 class Args:
     """Run a suite of script x task x seed, one process each; a later call resumes it."""
 
-    suite: Literal["paper", "ablations", "eta", "mixing", "push", "fetch", "hopper", "goals", "one_recipe", "one_set", "quick"]
+    suite: Literal[
+        "paper",
+        "ablations",
+        "eta",
+        "mixing",
+        "push",
+        "fetch",
+        "hopper",
+        "goals",
+        "one_recipe",
+        "one_set",
+        "every_goal",
+        "quick",
+    ]
     """which grid (benchmarks/suites.py's docstring): quick takes seconds, paper hours"""
     seeds: tuple[int, ...] = ()
     """override the suite's seeds"""

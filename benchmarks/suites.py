@@ -27,10 +27,13 @@ the suite's seeds or its own; ``--seeds`` replaces them):
   HandManipulateBlockRotateZ) and PointMaze_Medium; on PointMaze also with ``--gamma 0.995``,
   the setting it lacked (chosen on seeds 11-12), and on HandReach with ``--target-std 0.3``,
   summed and one rule per joint (chosen on seed 11).
-- ``one_recipe``: the defaults, the task's filled in by ``fill_in``, no flag but the
-  budget, on all six goal tasks at their budgets, seeds 401-403, which chose nothing.
+- ``one_recipe``: the defaults then (the sigma rule's targets held, spelled out), the task's
+  filled in by ``fill_in``, no other flag but the budget, on all six goal tasks at their budgets,
+  seeds 401-403, which chose nothing.
 - ``one_set``: tuning runs on seeds 11-13 for one set of defaults that earns every goal task,
   each candidate exploration mechanism on the tasks that pull apart; they choose, never report.
+- ``every_goal``: the one set of defaults, no flag but the budget, on all six goal tasks,
+  seeds 601-603, which chose nothing.
 
 ``benchmarks/run.py`` runs a suite (``suite_runs``); ``benchmarks/report.py`` shows it as its
 ``Report`` says.
@@ -126,6 +129,10 @@ HOPPER_IPG = (
     "20000",
     *EVERY,
 )
+# Every suite that ran before the one set of defaults (every_goal's) ran the sigma rule's targets held
+# and, but for Slide's row, constant learning rates: HELD spells that out (HELD_TARGETS beside --anneal-lr).
+HELD_TARGETS = ("--target-std-decay", "1.0")
+HELD = (*HELD_TARGETS, "--no-anneal-lr")
 # hopper: TD3's update regime, an update every 256 steps, one critic step per environment step,
 # 128 policy steps, run in parts; TD3_NARROW: TD3's exploration noise (0.1) with the KL target
 # scaled by (0.3 / 0.1)^2, so that the mean's step per update stays what it was at 0.3
@@ -158,6 +165,7 @@ TD3 = (
     "0.3",
     "--q-bar",
     "sample",
+    *HELD,
     "--learning-starts",
     "10000",
     "--eval-freq",
@@ -177,9 +185,11 @@ ONE_CRITIC = ("--no-twin-critic",)  # the recipe's defaults before the twin crit
 SUMMED = ("--target-std", "1.0")
 PICK_ROW = ("--target-std", "1.0", "1.0", "1.0", "0.3")
 SLIDE_ROW = ("--target-std", "0.3", "0.3", "0.3", "1.0", "--action-l2", "0.0", "--bounds-loss", "1.0")  # and --anneal-lr
-PICK_ONE_SIGMA = ("--total-timesteps", "500000", *FETCH_EVERY, *SUMMED)
-SLIDE_CONSTLR = ("--total-timesteps", "1000000", *FETCH_EVERY, "--no-anneal-lr")
-DECAY03 = ("--target-std-decay", "0.3", "--target-std-decay-steps", "100000")
+PICK_ONE_SIGMA = ("--total-timesteps", "500000", *FETCH_EVERY, *SUMMED, *HELD)
+SLIDE_CONSTLR = ("--total-timesteps", "1000000", *FETCH_EVERY, *HELD)
+# one_set's first candidates: the targets' decay without a floor, and the discount 1 - 1/H unclipped
+DECAY03 = ("--target-std-decay", "0.3", "--target-std-decay-steps", "100000", "--target-std-floor", "0.0")
+MAZE_GAMMA_THEN = ("--gamma", "0.9983333333333333")  # 1 - 1/600, PointMaze's discount before the clip at 0.995
 PUSH_BUDGET = ("--total-timesteps", "{steps}", "--eval-freq", "25000", "--resume-freq", "50000")
 TINY = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4", "--update-epochs", "2", "--eval-episodes", "1")
 TINY_IPG = ("--total-timesteps", "300", "--critic-steps", "4", "--eval-freq", "100", "--eval-episodes", "2")
@@ -348,20 +358,20 @@ SUITES: dict[str, Suite] = {
             budgets=(100_000, 150_000, 200_000, 300_000, 500_000, 1_000_000),
         ),
         [
-            ("ipg_her_300k", RECIPE, PUSH, ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED), (4, 5, 6, 7, 8)),
+            ("ipg_her_300k", RECIPE, PUSH, ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED, *HELD), (4, 5, 6, 7, 8)),
             (
                 "ipg_her_1critic_300k",
                 RECIPE,
                 PUSH,
-                ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED, *ONE_CRITIC),
+                ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED, *HELD, *ONE_CRITIC),
                 (4, 5, 6, 7, 8),
             ),
-            ("ipg_her_500k", RECIPE, PICK, ("--total-timesteps", "500000", *FETCH_EVERY, *PICK_ROW), (4, 5, 6)),
+            ("ipg_her_500k", RECIPE, PICK, ("--total-timesteps", "500000", *FETCH_EVERY, *PICK_ROW, *HELD), (4, 5, 6)),
             (
                 "ipg_her_1000k",
                 RECIPE,
                 SLIDE,
-                ("--total-timesteps", "1000000", *FETCH_EVERY, *SLIDE_ROW, "--anneal-lr"),
+                ("--total-timesteps", "1000000", *FETCH_EVERY, *SLIDE_ROW, *HELD_TARGETS, "--anneal-lr"),
                 (7, 8, 9),
             ),
             # PickAndPlace's earlier defaults, one sigma rule for all dimensions: with grasped starts,
@@ -386,7 +396,7 @@ SUITES: dict[str, Suite] = {
                     f"ipg_her{kind}_nu{nu}_200k",
                     RECIPE,
                     PUSH,
-                    ("--total-timesteps", "200000", "--nu", nu, *FETCH_EVERY, *SUMMED, *flags),
+                    ("--total-timesteps", "200000", "--nu", nu, *FETCH_EVERY, *SUMMED, *HELD, *flags),
                     (4, 5, 6),
                 )
                 for kind, flags in (("", ()), ("_1critic", ONE_CRITIC), ("_eq10", ("--normalization", "unbiased")))
@@ -400,36 +410,36 @@ SUITES: dict[str, Suite] = {
         (301, 302, 303),
         Report(per_episode=False),
         [
-            ("ipg_her_300k", RECIPE, "HandReach-v3", ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED)),
+            ("ipg_her_300k", RECIPE, "HandReach-v3", ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED, *HELD)),
             (
                 "ipg_her_300k_std03",
                 RECIPE,
                 "HandReach-v3",  # chosen on seed 11
-                ("--total-timesteps", "300000", "--target-std", "0.3", *FETCH_EVERY),
+                ("--total-timesteps", "300000", "--target-std", "0.3", *FETCH_EVERY, *HELD),
             ),
             (
                 "ipg_her_300k_std03x20",
                 RECIPE,
                 "HandReach-v3",  # one rule per joint, chosen on seed 11
-                ("--total-timesteps", "300000", "--target-std", *["0.3"] * 20, *FETCH_EVERY),
+                ("--total-timesteps", "300000", "--target-std", *["0.3"] * 20, *FETCH_EVERY, *HELD),
             ),
             (
                 "ipg_her_1000k",
                 RECIPE,
                 "HandManipulateBlockRotateZ-v1",
-                ("--total-timesteps", "1000000", *FETCH_EVERY, *SUMMED, "--gamma", "0.98"),
+                ("--total-timesteps", "1000000", *FETCH_EVERY, *SUMMED, "--gamma", "0.98", *HELD),
             ),
             (
                 "ipg_her_300k",
                 RECIPE,
                 "PointMaze_Medium-v3",
-                ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED, "--gamma", "0.98"),
+                ("--total-timesteps", "300000", *FETCH_EVERY, *SUMMED, "--gamma", "0.98", *HELD),
             ),
             (
                 "ipg_her_300k_gamma0995",
                 RECIPE,
                 "PointMaze_Medium-v3",  # chosen on seeds 11-12
-                ("--total-timesteps", "300000", "--gamma", "0.995", *FETCH_EVERY, *SUMMED),
+                ("--total-timesteps", "300000", "--gamma", "0.995", *FETCH_EVERY, *SUMMED, *HELD),
             ),
         ],
     ),
@@ -438,6 +448,66 @@ SUITES: dict[str, Suite] = {
     # is not 50 steps)
     "one_recipe": Suite(
         (401, 402, 403),
+        Report(
+            per_episode=False, median=True, levels=(0.5, 0.7, 0.9), budgets=(100_000, 150_000, 300_000, 500_000, 1_000_000)
+        ),
+        [
+            (f"ipg_her_{steps // 1000}k", RECIPE, env_id, ("--total-timesteps", str(steps), *FETCH_EVERY, *HELD, *gamma))
+            for env_id, steps, gamma in (
+                (PUSH, 300_000, ()),
+                (PICK, 500_000, ()),
+                (SLIDE, 1_000_000, ()),
+                ("HandReach-v3", 300_000, ()),
+                ("PointMaze_Medium-v3", 300_000, MAZE_GAMMA_THEN),
+                ("HandManipulateBlockRotateZ-v1", 1_000_000, ()),
+            )
+        ],
+    ),
+    # tuning runs for one set of defaults that earns every goal task (seeds 11-13 choose; none of these reports):
+    # each candidate exploration mechanism on the tasks that pull apart, at screening budgets
+    "one_set": Suite(
+        (11,),
+        Report(per_episode=False, median=True, levels=(0.5, 0.7, 0.9), budgets=(100_000, 150_000, 300_000, 500_000)),
+        [
+            # the sigma rule's targets decay geometrically to 0.3 of the rule's over the first 100k steps
+            *[
+                (
+                    f"decay03_{steps // 1000}k",
+                    RECIPE,
+                    env_id,
+                    ("--total-timesteps", str(steps), *FETCH_EVERY, *DECAY03, "--no-anneal-lr", *gamma),
+                )
+                for env_id, steps, gamma in (
+                    (PUSH, 300_000, ()),
+                    (SLIDE, 500_000, ()),
+                    (PICK, 300_000, ()),
+                    ("HandReach-v3", 300_000, ()),
+                    ("PointMaze_Medium-v3", 300_000, MAZE_GAMMA_THEN),
+                )
+            ],
+            # the same with both learning rates annealed to zero over the budget (Slide's late noise floor)
+            *[
+                (
+                    f"decay03_annealed_{steps // 1000}k",
+                    RECIPE,
+                    env_id,
+                    ("--total-timesteps", str(steps), *FETCH_EVERY, *DECAY03, "--anneal-lr", *gamma),
+                )
+                for env_id, steps, gamma in (
+                    (SLIDE, 1_000_000, ()),
+                    ("HandManipulateBlockRotateZ-v1", 1_000_000, ()),
+                    (PUSH, 300_000, ()),
+                    (PICK, 300_000, ()),
+                    ("HandReach-v3", 300_000, ()),
+                    ("PointMaze_Medium-v3", 300_000, MAZE_GAMMA_THEN),
+                )
+            ],
+        ],
+    ),
+    # the one set of defaults, frozen before any of these runs: no flag but the budget and the evaluation grid, on
+    # every goal task, seeds that chose nothing (601-603)
+    "every_goal": Suite(
+        (601, 602, 603),
         Report(
             per_episode=False, median=True, levels=(0.5, 0.7, 0.9), budgets=(100_000, 150_000, 300_000, 500_000, 1_000_000)
         ),
@@ -451,42 +521,6 @@ SUITES: dict[str, Suite] = {
                 ("PointMaze_Medium-v3", 300_000),
                 ("HandManipulateBlockRotateZ-v1", 1_000_000),
             )
-        ],
-    ),
-    # tuning runs for one set of defaults that earns every goal task (seeds 11-13 choose; none of these reports):
-    # each candidate exploration mechanism on the tasks that pull apart, at screening budgets
-    "one_set": Suite(
-        (11,),
-        Report(per_episode=False, median=True, levels=(0.5, 0.7, 0.9), budgets=(100_000, 150_000, 300_000, 500_000)),
-        [
-            # the sigma rule's targets decay geometrically to 0.3 of the rule's over the first 100k steps
-            *[
-                (f"decay03_{steps // 1000}k", RECIPE, env_id, ("--total-timesteps", str(steps), *FETCH_EVERY, *DECAY03))
-                for env_id, steps in (
-                    (PUSH, 300_000),
-                    (SLIDE, 500_000),
-                    (PICK, 300_000),
-                    ("HandReach-v3", 300_000),
-                    ("PointMaze_Medium-v3", 300_000),
-                )
-            ],
-            # the same with both learning rates annealed to zero over the budget (Slide's late noise floor)
-            *[
-                (
-                    f"decay03_annealed_{steps // 1000}k",
-                    RECIPE,
-                    env_id,
-                    ("--total-timesteps", str(steps), *FETCH_EVERY, *DECAY03, "--anneal-lr"),
-                )
-                for env_id, steps in (
-                    (SLIDE, 1_000_000),
-                    ("HandManipulateBlockRotateZ-v1", 1_000_000),
-                    (PUSH, 300_000),
-                    (PICK, 300_000),
-                    ("HandReach-v3", 300_000),
-                    ("PointMaze_Medium-v3", 300_000),
-                )
-            ],
         ],
     ),
     "quick": Suite(

@@ -100,7 +100,7 @@ def test_the_goals_suite_runs_the_recipes_defaults_then_with_no_flag_but_the_bud
     target (summed and one rule per joint)."""
     runs = suites.suite_runs("goals")
     flag = re.compile(r"(--\S+) ([^-\s]\S*(?: [^-\s]\S*)*)")  # a flag and its values
-    then = (suites.SUMMED, ("--gamma", "0.98"))
+    then = (suites.SUMMED, ("--gamma", "0.98"), suites.HELD)
     budgets = {
         (r.name, r.env_id, r.seed): dict(flag.findall(" ".join(without(r.flags, *then))))
         for r in runs
@@ -126,11 +126,13 @@ def test_the_goals_suite_runs_the_recipes_defaults_then_with_no_flag_but_the_bud
         }
 
 
-def test_the_one_recipe_suite_runs_every_goal_task_with_no_flag_but_the_budget():
-    """The defaults, the task's filled in by fill_in, on seeds that chose nothing (401-403): each
-    goal task at its budget, evaluated every 10,000 steps on 50 episodes, resumable, no other
-    flag."""
-    runs = suites.suite_runs("one_recipe")
+@pytest.mark.parametrize("suite", ["one_recipe", "every_goal"])
+def test_the_one_recipe_and_every_goal_suites_run_every_goal_task_with_no_flag_but_the_budget(suite):
+    """The defaults, the task's filled in by fill_in, on seeds that chose nothing (401-403, 601-603): each goal task at
+    its budget, evaluated every 10,000 steps on 50 episodes, resumable, no other flag; one_recipe's with the defaults it
+    ran with spelled out (the targets held, constant rates, PointMaze's discount 1 - 1/600 before the clip)."""
+    runs = suites.suite_runs(suite)
+    seeds = {"one_recipe": (401, 402, 403), "every_goal": (601, 602, 603)}[suite]
     budgets = {
         "FetchPush-v4": 300_000,
         "FetchPickAndPlace-v4": 500_000,
@@ -139,10 +141,11 @@ def test_the_one_recipe_suite_runs_every_goal_task_with_no_flag_but_the_budget()
         "PointMaze_Medium-v3": 300_000,
         "HandManipulateBlockRotateZ-v1": 10**6,
     }
-    assert sorted((r.env_id, r.seed) for r in runs) == sorted((env_id, seed) for env_id in budgets for seed in (401, 402, 403))
+    assert sorted((r.env_id, r.seed) for r in runs) == sorted((env_id, seed) for env_id in budgets for seed in seeds)
     for r in runs:
         assert r.script == "ipg_her_recipe.py" and r.name == f"ipg_her_{budgets[r.env_id] // 1000}k"
-        assert r.flags == ("--total-timesteps", str(budgets[r.env_id]), *suites.FETCH_EVERY)
+        then = () if suite == "every_goal" else (*suites.HELD, *("--gamma", str(1 - 1 / 600)) * r.env_id.startswith("Point"))
+        assert r.flags == ("--total-timesteps", str(budgets[r.env_id]), *suites.FETCH_EVERY, *then)
 
 
 def test_the_fetch_and_goals_suites_still_run_what_ran():
@@ -152,7 +155,7 @@ def test_the_fetch_and_goals_suites_still_run_what_ran():
     page still run what they report."""
     import ipg_her_recipe as recipe
 
-    args_then = dict(gamma=0.98, grasped_start=0.0)  # the Args defaults then that differ from today's, besides RECIPE's
+    args_then = dict(gamma=0.98, grasped_start=0.0, target_std_decay=1.0, anneal_lr=False)  # the Args defaults then
     recipe_then = dict(hidden=256, target_std=1.0, normalization="paper", action_l2=1.0, twin_critic=True)
     rows_then = {
         "FetchPickAndPlace-v4": recipe_then | dict(grasped_start=0.5, target_std=(1.0, 1.0, 1.0, 0.3)),
@@ -181,7 +184,7 @@ def test_the_recipes_runs_in_every_suite_still_run_what_ran():
 
     then_defaults = dict(
         hidden=64, normalization="unbiased", action_l2=0.0, twin_critic=False, gamma=0.98, target_std=None, grasped_start=0.0
-    )
+    ) | dict(target_std_decay=1.0, anneal_lr=False)
     runs = [r for suite in suites.SUITES for r in suites.suite_runs(suite) if r.script == "ipg_her_recipe.py"]
     hopper = [r for r in runs if r.env_id.startswith("Hopper")]
     assert len(hopper) >= 10
@@ -212,11 +215,12 @@ def test_the_fetch_suite_runs_the_recipe_with_no_flag_but_the_budget_and_evaluat
     for r in runs:
         assert r.script == "ipg_her_recipe.py"
         then = {
-            "FetchPush-v4": (suites.SUMMED,),
-            "FetchPickAndPlace-v4": (suites.PICK_ROW,),
-            "FetchSlide-v4": (suites.SLIDE_ROW, ("--anneal-lr",)),
+            "FetchPush-v4": (suites.SUMMED, suites.HELD),
+            "FetchPickAndPlace-v4": (suites.PICK_ROW, suites.HELD),
+            "FetchSlide-v4": (suites.SLIDE_ROW, suites.HELD_TARGETS, ("--anneal-lr",)),
         }[r.env_id]
-        r_flags = r.flags if "_grasped" in r.name or "_nograsp" in r.name else without(r.flags, *then)
+        held = without(r.flags, suites.HELD)
+        r_flags = held if "_grasped" in r.name or "_nograsp" in r.name else without(r.flags, *then)
         critics = "1" if "--no-twin-critic" in r_flags else "2"
         assert (critics == "1") == ("_1critic" in r.name)
         constlr = "--no-anneal-lr" in r_flags  # Slide's earlier defaults, and Push's on Slide

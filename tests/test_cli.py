@@ -203,12 +203,13 @@ def test_the_recipes_flags_are_not_the_papers(capsys):
         "target_std",
         "target_std_decay",
         "target_std_decay_steps",
+        "target_std_floor",
         "twin_critic",
     ]
     papers = {f.name: f.default for f in dataclasses.fields(ipg_her.Args)}
     recipes = {f.name: f.default for f in dataclasses.fields(ipg_her_recipe.Args)}
     changed = {name for name in papers if papers[name] != recipes[name]}
-    assert changed == {"gamma", "hidden", "normalization"}  # the recipe's own defaults, in its --help
+    assert changed == {"anneal_lr", "gamma", "hidden", "normalization"}  # the recipe's own defaults, in its --help
     assert not hasattr(ipg_her, "fill_in") and not hasattr(ipg_her, "sigma_rule")
     for name in RECIPE_ONLY:
         line = refused(capsys, ipg_her, cli.flag(name))
@@ -334,8 +335,8 @@ def test_no_flags_help_breaks_mid_sentence(script):
 def test_what_follows_from_the_task_is_filled_in_where_help_says_none_and_a_flag_given_wins():
     """ipg_her_recipe.py's defaults are its Args' (its --help); three fields default to None, "filled in at start" by
     ``fill_in`` from the task, one rule for every task and no row for any: sigma min(1, 2 / sqrt(d)) on each of d action
-    dimensions, gamma 1 - 1/H for H-step episodes, grasped starts where the gripper can hold the object. A flag given
-    wins; nothing else changes."""
+    dimensions, gamma 1 - 1/H for H-step episodes (at most 0.995), grasped starts where the gripper can hold the object.
+    A flag given wins; nothing else changes."""
     nones = {f.name for f in dataclasses.fields(ipg_her_recipe.Args) if f.default is None}
     papers = {f.name for f in dataclasses.fields(ipg_her.Args) if f.default is None}
     assert nones - papers == {"gamma", "target_std", "grasped_start"}
@@ -351,8 +352,8 @@ def test_what_follows_from_the_task_is_filled_in_where_help_says_none_and_a_flag
         "FetchSlide-v4": ((1.0,) * 4, 0.98, 0.0),  # its gripper is blocked
         "HandReach-v3": ((0.447,) * 20, 0.98, 0.0),  # 2 / sqrt(20)
         "HandManipulateBlockRotateZ-v1": ((0.447,) * 20, 0.99, 0.0),  # 100 steps
-        "PointMaze_Medium-v3": ((1.0, 1.0), 1 - 1 / 600, 0.0),
-        "Hopper-v5": ((1.0,) * 3, 1 - 1 / 1000, 0.0),  # the same rule on a task without goals
+        "PointMaze_Medium-v3": ((1.0, 1.0), 0.995, 0.0),  # 1 - 1/600, clipped
+        "Hopper-v5": ((1.0,) * 3, 0.995, 0.0),  # the same rule on a task without goals
     }
     for env_id, (target_std, gamma, grasped_start) in own.items():
         args = ipg_her_recipe.Args(env_id=env_id)

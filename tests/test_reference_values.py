@@ -30,10 +30,23 @@ from conftest import ROOT, run_dirs, run_script, scalars
 REFERENCE = ROOT / "tests" / "reference_values.json"
 OTHER_CPUS = ROOT / "tests" / "reference_values_other_cpus.json"  # {name: [recording, ...]}
 TIMED = ("charts/SPS",)  # wall-clock figures: never the same twice
+HELD = ("--target-std-decay", "1.0", "--no-anneal-lr")  # the sigma rule's targets held, constant rates: the defaults then
 RECORDED_ROWS = {  # flags: the same as the defaults then; grasped starts are the task's now
-    "FetchPush": ("--target-std", "1.0"),
-    "FetchPickAndPlace": ("--target-std", "1.0", "1.0", "1.0", "0.3"),
-    "FetchSlide": ("--target-std", "0.3", "0.3", "0.3", "1.0", "--action-l2", "0.0", "--bounds-loss", "1.0", "--anneal-lr"),
+    "FetchPush": ("--target-std", "1.0", *HELD),
+    "FetchPickAndPlace": ("--target-std", "1.0", "1.0", "1.0", "0.3", *HELD),
+    "FetchSlide": (
+        "--target-std",
+        "0.3",
+        "0.3",
+        "0.3",
+        "1.0",
+        "--action-l2",
+        "0.0",
+        "--bounds-loss",
+        "1.0",
+        *HELD[:2],
+        "--anneal-lr",
+    ),
 }
 HOPPER_TINY = "--env-id Hopper-v5 --total-timesteps 1536 --num-envs 2 --num-steps 256 --num-minibatches 4 --update-epochs 2"
 GOAL_TINY = "--total-timesteps 600 --critic-steps 8 --eval-freq 200 --eval-episodes 2 --diagnostics-every 1 --eval-workers 0"
@@ -52,7 +65,7 @@ COMMANDS = {
     "recipe_hopper_nu1": "ipg_her_recipe.py --env-id Hopper-v5 --total-timesteps 1024 --num-envs 1 --num-steps 256 "
     "--critic-steps 16 --update-epochs 2 --num-minibatches 4 --learning-rate 3e-4 --gamma 0.99 --tau 0.005 --twin-critic "
     "--hidden 64 --action-l2 0.0 --target-std 0.1 --kl-target 0.9 --q-bar sample --bounds-loss 1.0 --normalization paper "
-    "--learning-starts 256 --eval-freq 512 --eval-episodes 1 --diagnostics-every 1 --eval-workers 0",
+    "--learning-starts 256 --eval-freq 512 --eval-episodes 1 --diagnostics-every 1 --eval-workers 0 " + " ".join(HELD),
 }
 CONFIGS = {name: tuple(command.split()) for name, command in COMMANDS.items()}  # script, then flags
 

@@ -1,6 +1,6 @@
 """ipg_her_recipe.py's sigma rule towards targets that decay over training (``--target-std-decay``): the schedule is
-geometric and then held, 1 holds the targets as they were, and the training loop steps the rule towards the decayed
-targets."""
+geometric and then held, never below ``--target-std-floor``, 1 holds the targets as they were, and the training loop
+steps the rule towards the decayed targets."""
 
 import numpy as np
 from conftest import run_dirs, run_script, scalars
@@ -16,6 +16,16 @@ def test_the_targets_decay_geometrically_then_hold():
     np.testing.assert_allclose(ipg_her_recipe.annealed(targets, 0.3, 7.0), np.array(targets) * 0.3)  # then held
     assert ipg_her_recipe.annealed(targets, 1.0, 0.5) is targets  # 1: the targets as given, the same numbers
     np.testing.assert_allclose(ipg_her_recipe.annealed(0.8, 0.5, 1.0), 0.4)  # one summed target too
+
+
+def test_no_target_decays_below_the_floor_and_one_below_it_is_held():
+    """--target-std-floor: the hand's 0.447 stops at 0.3 (not 0.134), a Fetch task's 1.0 reaches 0.3 as the decay takes
+    it, a target given below the floor stays where it was given."""
+    np.testing.assert_allclose(ipg_her_recipe.annealed((0.447,) * 2, 0.3, 1.0, 0.3), (0.3, 0.3))
+    np.testing.assert_allclose(ipg_her_recipe.annealed((1.0, 0.2), 0.3, 1.0, 0.3), (0.3, 0.2))
+    np.testing.assert_allclose(ipg_her_recipe.annealed((1.0, 0.2), 0.3, 0.5, 0.3), (0.3**0.5, 0.2))
+    np.testing.assert_allclose(ipg_her_recipe.annealed((0.447,), 0.3, 1.0, 0.0), (0.447 * 0.3,))  # floor 0: none
+    assert ipg_her_recipe.Args().target_std_floor == 0.3 and ipg_her_recipe.Args().target_std_decay == 0.3
 
 
 def test_the_loop_steps_the_rule_towards_the_decayed_targets(tmp_path):
