@@ -467,8 +467,22 @@ SUITES: dict[str, Suite] = {
     # each candidate exploration mechanism on the tasks that pull apart, at screening budgets
     "one_set": Suite(
         (11,),
-        Report(per_episode=False, median=True, levels=(0.5, 0.7, 0.9), budgets=(100_000, 150_000, 300_000, 500_000)),
+        Report(
+            per_episode=False, median=True, levels=(0.5, 0.7, 0.9), budgets=(100_000, 150_000, 300_000, 500_000, 1_000_000)
+        ),
         [
+            # the one set of defaults as frozen (no flag but the budget: every_goal's rows), on the tuning seeds
+            *[
+                (f"defaults_{steps // 1000}k", RECIPE, env_id, ("--total-timesteps", str(steps), *FETCH_EVERY), (11, 12))
+                for env_id, steps in (
+                    (PUSH, 300_000),
+                    (PICK, 500_000),
+                    (SLIDE, 1_000_000),
+                    ("HandReach-v3", 300_000),
+                    ("PointMaze_Medium-v3", 300_000),
+                    ("HandManipulateBlockRotateZ-v1", 1_000_000),
+                )
+            ],
             # the sigma rule's targets decay geometrically to 0.3 of the rule's over the first 100k steps
             *[
                 (

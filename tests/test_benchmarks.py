@@ -148,6 +148,14 @@ def test_the_one_recipe_and_every_goal_suites_run_every_goal_task_with_no_flag_b
         assert r.flags == ("--total-timesteps", str(budgets[r.env_id]), *suites.FETCH_EVERY, *then)
 
 
+def test_the_tuning_suite_runs_the_frozen_defaults_on_seeds_11_and_12_as_every_goal_runs_them_on_601_603():
+    """one_set's ``defaults_`` rows are every_goal's commands, on the tuning seeds: what chose is what reports."""
+    tuning = sorted((r.env_id, r.flags, r.seed) for r in suites.suite_runs("one_set") if r.name.startswith("defaults_"))
+    reporting = sorted((r.env_id, r.flags) for r in suites.suite_runs("every_goal") if r.seed == 601)
+    assert sorted({(env_id, flags) for env_id, flags, _ in tuning}) == reporting
+    assert sorted(seed for *_, seed in tuning) == [11] * 6 + [12] * 6
+
+
 def test_the_fetch_and_goals_suites_still_run_what_ran():
     """Their exports were run when the recipe's defaults were RECIPE's summed sigma rule at 1,
     gamma 0.98 and rows for PickAndPlace and Slide: every run of theirs, parsed as the script
