@@ -507,8 +507,7 @@ def ipg_update(
 
 
 def annealed(target_std, decay: float, progress: float, floor: float = 0.0):
-    """The sigma rule's target(s) ``target_std`` times ``decay ** min(1, progress)``: geometric from 1 to ``decay``,
-    never below ``floor`` (a target already below it is held)."""
+    """The target(s) ``target_std`` times ``decay ** min(1, progress)``, never below ``floor`` (one below it is held)."""
     if decay == 1:
         return target_std
     return np.maximum(np.asarray(target_std) * decay ** min(1.0, progress), np.minimum(target_std, floor))

@@ -41,3 +41,23 @@ def test_the_loop_steps_the_rule_towards_the_decayed_targets(tmp_path):
         alphas[decay] = [value for _, value in scalars(run_dir)["ipg/alpha"]]
     assert alphas["1.0"][0] == alphas["0.01"][0] == 0.0  # the first update, before any step of the rule
     assert alphas["0.01"][-1] < alphas["1.0"][-1] - 0.05  # log(0.01) = -4.6: each step lower by 0.046
+
+
+def test_the_schedules_flags_are_refused_where_the_targets_are_held(capsys):
+    """At --target-std-decay 1 the targets are held: its steps and its floor would be ignored, so each is refused with one
+    line; a negative floor is refused too."""
+    import pytest
+
+    from common import cli
+
+    for flags in (("--target-std-floor", "0.2"), ("--target-std-decay-steps", "50000")):
+        argv = ["--target-std-decay", "1", *flags]
+        with pytest.raises(SystemExit):
+            ipg_her_recipe.check_args(cli.parse_args(ipg_her_recipe.Args, argv), argv)
+        assert (
+            capsys.readouterr().err
+            == f"error: {flags[0]} would be ignored (--target-std-decay 1 holds the targets): leave it out\n"
+        )
+    with pytest.raises(SystemExit):
+        ipg_her_recipe.check_args(cli.parse_args(ipg_her_recipe.Args, ["--target-std-floor", "-1"]), [])
+    assert "--target-std-floor must be non-negative" in capsys.readouterr().err
