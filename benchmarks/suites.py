@@ -190,6 +190,14 @@ SLIDE_CONSTLR = ("--total-timesteps", "1000000", *FETCH_EVERY, *HELD)
 # one_set's first candidates: the targets' decay without a floor, and the discount 1 - 1/H unclipped
 DECAY03 = ("--target-std-decay", "0.3", "--target-std-decay-steps", "100000", "--target-std-floor", "0.0")
 MAZE_GAMMA_THEN = ("--gamma", "0.9983333333333333")  # 1 - 1/600, PointMaze's discount before the clip at 0.995
+GOAL_TASKS = (  # every goal task at its budget (one_recipe, every_goal and the tuning seeds' rows of one_set)
+    (PUSH, 300_000),
+    (PICK, 500_000),
+    (SLIDE, 1_000_000),
+    ("HandReach-v3", 300_000),
+    ("PointMaze_Medium-v3", 300_000),
+    ("HandManipulateBlockRotateZ-v1", 1_000_000),
+)
 PUSH_BUDGET = ("--total-timesteps", "{steps}", "--eval-freq", "25000", "--resume-freq", "50000")
 TINY = ("--num-envs", "2", "--num-steps", "128", "--num-minibatches", "4", "--update-epochs", "2", "--eval-episodes", "1")
 TINY_IPG = ("--total-timesteps", "300", "--critic-steps", "4", "--eval-freq", "100", "--eval-episodes", "2")
@@ -452,15 +460,13 @@ SUITES: dict[str, Suite] = {
             per_episode=False, median=True, levels=(0.5, 0.7, 0.9), budgets=(100_000, 150_000, 300_000, 500_000, 1_000_000)
         ),
         [
-            (f"ipg_her_{steps // 1000}k", RECIPE, env_id, ("--total-timesteps", str(steps), *FETCH_EVERY, *HELD, *gamma))
-            for env_id, steps, gamma in (
-                (PUSH, 300_000, ()),
-                (PICK, 500_000, ()),
-                (SLIDE, 1_000_000, ()),
-                ("HandReach-v3", 300_000, ()),
-                ("PointMaze_Medium-v3", 300_000, MAZE_GAMMA_THEN),
-                ("HandManipulateBlockRotateZ-v1", 1_000_000, ()),
+            (
+                f"ipg_her_{steps // 1000}k",
+                RECIPE,
+                env_id,
+                ("--total-timesteps", str(steps), *FETCH_EVERY, *HELD, *(MAZE_GAMMA_THEN if "Maze" in env_id else ())),
             )
+            for env_id, steps in GOAL_TASKS
         ],
     ),
     # tuning runs for one set of defaults that earns every goal task (seeds 11-13 choose; none of these reports):
@@ -474,14 +480,7 @@ SUITES: dict[str, Suite] = {
             # the one set of defaults as frozen (no flag but the budget: every_goal's rows), on the tuning seeds
             *[
                 (f"defaults_{steps // 1000}k", RECIPE, env_id, ("--total-timesteps", str(steps), *FETCH_EVERY), (11, 12))
-                for env_id, steps in (
-                    (PUSH, 300_000),
-                    (PICK, 500_000),
-                    (SLIDE, 1_000_000),
-                    ("HandReach-v3", 300_000),
-                    ("PointMaze_Medium-v3", 300_000),
-                    ("HandManipulateBlockRotateZ-v1", 1_000_000),
-                )
+                for env_id, steps in GOAL_TASKS
             ],
             # the sigma rule's targets decay geometrically to 0.3 of the rule's over the first 100k steps
             *[
@@ -527,14 +526,7 @@ SUITES: dict[str, Suite] = {
         ),
         [
             (f"ipg_her_{steps // 1000}k", RECIPE, env_id, ("--total-timesteps", str(steps), *FETCH_EVERY))
-            for env_id, steps in (
-                (PUSH, 300_000),
-                (PICK, 500_000),
-                (SLIDE, 1_000_000),
-                ("HandReach-v3", 300_000),
-                ("PointMaze_Medium-v3", 300_000),
-                ("HandManipulateBlockRotateZ-v1", 1_000_000),
-            )
+            for env_id, steps in GOAL_TASKS
         ],
     ),
     "quick": Suite(
