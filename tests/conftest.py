@@ -1,6 +1,7 @@
 """Shared test helpers: run a script in a subprocess, read back its TensorBoard scalars, parse
 and check a command line in-process as a script does, a folder made read-only for a while, and a
-random on-policy batch for the update functions."""
+random on-policy batch for the update functions; no test leaves a process running or its
+scripts deaf to Ctrl-C."""
 
 import contextlib
 import inspect
@@ -17,6 +18,12 @@ import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+# Started in the background by a script (`pytest ... &`), a test run inherits Ctrl-C ignored, and so
+# would every script it starts (Python keeps an ignored SIGINT ignored): the Ctrl-C tests would send
+# a signal no one hears. The tests press Ctrl-C as a terminal does, so their scripts get it back.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def run_script(script: str, log_dir: Path, *flags: str, timeout: int = 600) -> subprocess.CompletedProcess:
@@ -108,6 +115,37 @@ def signal_handlers():
     yield
     for s, handler in saved.items():
         signal.signal(s, handler)
+
+
+def children(pid: int) -> set[int]:
+    """Every descendant of ``pid`` still in /proc (Linux)."""
+    found = set()
+    with contextlib.suppress(FileNotFoundError):  # an ended process has no children
+        for task in os.listdir(f"/proc/{pid}/task"):
+            with open(f"/proc/{pid}/task/{task}/children") as f:
+                found |= {int(c) for c in f.read().split()}
+    return found | {g for c in found for g in children(c)}
+
+
+def alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[1][0] != "Z"  # a zombie has ended
+    except FileNotFoundError:
+        return False
+
+
+@pytest.fixture(autouse=True)
+def no_process_outlives_its_test():
+    """A test that fails while its script runs (an assert, a timeout) leaves the script running,
+    a load that fails the tests after it: what it started is killed when it ends (not
+    multiprocessing's resource tracker, which the test process keeps)."""
+    before = children(os.getpid())
+    yield
+    for pid in children(os.getpid()) - before:
+        with contextlib.suppress(OSError):
+            if b"resource_tracker" not in Path(f"/proc/{pid}/cmdline").read_bytes():
+                os.kill(pid, signal.SIGKILL)
 
 
 @pytest.fixture(scope="session")

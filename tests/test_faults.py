@@ -16,7 +16,7 @@ import time
 
 import pytest
 import torch
-from conftest import ROOT, assert_clean_error, run_dirs, run_script, scalars
+from conftest import ROOT, alive, assert_clean_error, children, run_dirs, run_script, scalars
 
 from common import checkpoint, evaluate, stops
 
@@ -35,23 +35,6 @@ def start(log_dir, *flags, **popen):
     first = proc.stdout.readline()
     assert first.startswith("run folder: "), first + proc.communicate()[1]
     return proc, first.removeprefix("run folder: ").strip()
-
-
-def children(pid: int) -> set[int]:
-    """Every descendant of ``pid`` (Linux /proc)."""
-    found = set()
-    for task in os.listdir(f"/proc/{pid}/task"):
-        with open(f"/proc/{pid}/task/{task}/children") as f:
-            found |= {int(c) for c in f.read().split()}
-    return found | {g for c in found if os.path.exists(f"/proc/{c}") for g in children(c)}
-
-
-def alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().split(") ")[1][0] != "Z"  # a zombie has ended
-    except FileNotFoundError:
-        return False
 
 
 @pytest.fixture(scope="module")
