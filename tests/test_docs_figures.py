@@ -224,11 +224,11 @@ def readme_rows() -> dict[str, list[str]]:
             "1M",
             "401-403",
         ],
-        "HandReach, the defaults, 300k (seed 601)": [
-            f"last evaluation {final_eval('every_goal', reach, 'ipg_her_300k', '601')} (the target: "
-            f"{TARGETS[reach][1]:.2f}; SB3 SAC+HER on the same seed {median(final_eval('every_goal', reach, sac, '601'))})",
+        "HandReach, the defaults, 300k (seeds 601-603)": [
+            f"last evaluation {final_eval('every_goal', reach, 'ipg_her_300k', '601-603')} (the target: "
+            f"{TARGETS[reach][1]:.2f}; SB3 SAC+HER on the same seeds {final_eval('every_goal', reach, sac, '601-603')})",
             "300k",
-            "601",
+            "601-603",
         ],
         "PointMaze_Medium, the defaults, 300k (seeds 601-603)": [
             f"last evaluation {final_eval('every_goal', maze, 'ipg_her_300k', '601-603')} (the target: "
@@ -300,8 +300,11 @@ SOURCES = {
     ),
     # the recipe's defaults on every goal task (results.md's first goal table, then its task sections)
     ("FetchPush-v4", "601-603", "**the defaults** (held out)"): ("every_goal", "ipg_her_300k"),
-    ("HandReach-v3", "601", "**the defaults** (held out)"): ("every_goal", "ipg_her_300k"),
+    ("HandReach-v3", "601-603", "**the defaults** (held out)"): ("every_goal", "ipg_her_300k"),
+    ("HandReach-v3", "601-603", "SB3 SAC+HER (anchor)"): ("every_goal", "SB3 SAC+HER (anchor; zoo settings)"),
     ("PointMaze_Medium-v3", "601-603", "**the defaults** (held out)"): ("every_goal", "ipg_her_300k"),
+    ("FetchSlide-v4", "601", "**the defaults** (held out)"): ("every_goal", "ipg_her_1000k"),
+    ("HandManipulateBlockRotateZ-v1", "601", "**the defaults** (held out)"): ("every_goal", "ipg_her_1000k"),
     ("FetchPush-v4", "601-603", "**`ipg_her_recipe.py`, 300k, the defaults** (held out)"): (
         "every_goal",
         "ipg_her_300k",
@@ -343,23 +346,6 @@ SOURCES = {
         "ipg_her_1000k",
     ),
     ("FetchSlide-v4", "7-9", "Slide's flags (held out)"): ("fetch", "ipg_her_1000k"),
-    ("HandReach-v3", "401-403", "**the held rule, 0.447 for each joint** (held out)"): (
-        "one_recipe",
-        "ipg_her_300k",
-    ),
-    (
-        "HandReach-v3",
-        "301-303",
-        "**`--target-std 1.0 --gamma 0.98`, one summed rule** (held out)",
-    ): ("goals", "ipg_her_300k"),
-    ("HandReach-v3", "301-303", "`--target-std 0.3`, one summed rule ‡"): (
-        "goals",
-        "ipg_her_300k_std03",
-    ),
-    ("HandReach-v3", "301-303", "`--target-std 0.3` for each of the 20 joints ‡"): (
-        "goals",
-        "ipg_her_300k_std03x20",
-    ),
     ("HandReach-v3", "401-403", "**the held rule** (held out)"): (
         "one_recipe",
         "ipg_her_300k",
@@ -572,7 +558,8 @@ def per_seed(suite: str, group: str, level: float | None = None) -> str:
 def test_the_goal_sections_per_seed_figures_are_the_exports():
     """The prose of results.md's goal-task sections quotes the defaults' seeds one by one, and the
     rows beside them by their medians: each phrase is rebuilt from its export."""
-    push, maze = "ipg_her_300k__FetchPush-v4", "ipg_her_300k__PointMaze_Medium-v3"
+    push, maze, reach = "ipg_her_300k__FetchPush-v4", "ipg_her_300k__PointMaze_Medium-v3", "ipg_her_300k__HandReach-v3"
+    sac = "SB3 SAC+HER (anchor; zoo settings)"
     phrases = [
         f"**The recipe reaches 0.9 in every held-out seed** (at {per_seed('every_goal', push, 0.9)})",
         f"the\n  last evaluations are {per_seed('every_goal', push)}",
@@ -584,6 +571,14 @@ def test_the_goal_sections_per_seed_figures_are_the_exports():
         f"ended at a median {median(final_eval('one_recipe', 'PointMaze_Medium-v3', 'ipg_her_300k', '401-403'))} "
         "on seeds 401-403",
         f"at {median(final_eval('goals', 'PointMaze_Medium-v3', 'ipg_her_300k', '301-303'))} on seeds 301-303",
+        f"The defaults end at {per_seed('every_goal', reach)}, the anchor on the same seeds at "
+        + " / ".join(median(final_eval("every_goal", "HandReach-v3", sac, str(s))) for s in (601, 602, 603)),
+        f"**short of the target, {TARGETS['HandReach-v3'][1]:.2f}, by "
+        f"{TARGETS['HandReach-v3'][1] - float(median(final_eval('every_goal', 'HandReach-v3', 'ipg_her_300k'))):.2f}**, "
+        f"ahead of the anchor's median, {median(final_eval('every_goal', 'HandReach-v3', sac))}",
+        f"ended at a median {median(final_eval('one_recipe', 'HandReach-v3', 'ipg_her_300k', '401-403'))} on seeds "
+        f"401-403 (SAC+HER {median(final_eval('one_recipe', 'HandReach-v3', sac, '401-403'))} there)",
+        f"$\\gamma$ 0.98 at {median(final_eval('goals', 'HandReach-v3', 'ipg_her_300k', '301-303'))} on seeds 301-303",
     ]
     text = " ".join((ROOT / "docs" / "results.md").read_text().split())
     missing = [p for p in phrases if " ".join(p.split()) not in text]
@@ -604,8 +599,9 @@ def test_the_recipe_pages_rows_of_its_defaults_are_the_exports():
         f"{TARGETS[maze][1] - float(median(final_eval('every_goal', maze, 'ipg_her_300k'))):.2f}; every seed passed "
         f"0.9 (at a median {kilo(first_eval('every_goal', maze, 'ipg_her_300k', 0.9))})",
         f"ends at {median(final_eval('one_recipe', maze, sac, '401-403'))} on seeds 401-403",
-        f"{final_eval('every_goal', reach, 'ipg_her_300k', '601')} on seed 601 (the target: {TARGETS[reach][1]:.2f}), "
-        f"where SB3's SAC+HER ends at {median(final_eval('every_goal', reach, sac, '601'))} on the same seed",
+        f"{final_eval('every_goal', reach, 'ipg_her_300k', '601-603')} on seeds 601-603 (the target: "
+        f"{TARGETS[reach][1]:.2f}), where SB3's SAC+HER ends at {final_eval('every_goal', reach, sac, '601-603')} on "
+        "the same seeds",
     ]
     text = " ".join((ROOT / "docs" / "ipg_her_recipe.md").read_text().split("## Results")[1].split())
     missing = [p for p in phrases if " ".join(p.split()) not in text]
