@@ -423,6 +423,11 @@ def headline_rows(page: str) -> list[tuple[str, dict]]:
     return rows
 
 
+def row_key(task: str, cells: dict) -> tuple[str, str, str]:
+    """A page row's key in SOURCES: (task, seeds, its label)."""
+    return task, cells["seeds"], cells.get("settings") or cells.get("algorithm") or cells["algorithm, budget"]
+
+
 @pytest.mark.parametrize("page", PAGES)
 def test_each_headline_row_of_the_results_pages_is_its_exports(page):
     """Every row of the page's headline tables names its export row here (SOURCES: a new row
@@ -431,8 +436,7 @@ def test_each_headline_row_of_the_results_pages_is_its_exports(page):
     rows = headline_rows(page)
     assert len(rows) >= 15, f"{page}: its headline tables were not found"
     for task, cells in rows:
-        label = cells.get("settings") or cells.get("algorithm") or cells["algorithm, budget"]
-        key = (task, cells["seeds"], label)
+        key = row_key(task, cells)
         assert key in SOURCES, f"{page}: the row {key} names no export in SOURCES"
         suite, name = SOURCES[key]
         for column in [c for c in cells if c == FINAL or c.startswith("first eval")]:
@@ -441,11 +445,7 @@ def test_each_headline_row_of_the_results_pages_is_its_exports(page):
 
 
 def page_row_keys() -> set[tuple[str, str, str]]:
-    return {
-        (task, cells["seeds"], cells.get("settings") or cells.get("algorithm") or cells["algorithm, budget"])
-        for page in PAGES
-        for task, cells in headline_rows(page)
-    }
+    return {row_key(task, cells) for page in PAGES for task, cells in headline_rows(page)}
 
 
 def test_every_source_is_a_row_a_page_shows():
