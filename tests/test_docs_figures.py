@@ -208,13 +208,13 @@ def readme_rows() -> dict[str, list[str]]:
             "300k",
             "601-603",
         ],
-        "FetchPickAndPlace, the defaults, 500k (seeds 601-602)": [
-            f"last evaluation {final_eval('every_goal', pick, 'ipg_her_500k', '601-602')}, 0.9 by a median "
+        "FetchPickAndPlace, the defaults, 500k (seeds 601-603)": [
+            f"last evaluation {final_eval('every_goal', pick, 'ipg_her_500k', '601-603')}, 0.9 by a median "
             f"{kilo(first_eval('every_goal', pick, 'ipg_her_500k', 0.9))} steps (the target: by "
             f"{TARGETS[pick][0] // 1000}k, ending ≥ {TARGETS[pick][1]:.2f}; TQC+HER's published agent: "
             f"{kilo(first_eval('every_goal', pick, TQC, 0.9))})",
             "500k",
-            "601-602",
+            "601-603",
         ],
         "FetchSlide, 1M (seeds 401-403)": [
             f"last evaluation {final_eval('one_recipe', slide, 'ipg_her_1000k', '401-403')}",
@@ -302,9 +302,9 @@ SOURCES = {
     ("HandReach-v3", "601-603", "**the defaults** (held out)"): ("every_goal", "ipg_her_300k"),
     ("HandReach-v3", "601-603", "SB3 SAC+HER (anchor)"): ("every_goal", "SB3 SAC+HER (anchor; zoo settings)"),
     ("PointMaze_Medium-v3", "601-603", "**the defaults** (held out)"): ("every_goal", "ipg_her_300k"),
-    ("FetchPickAndPlace-v4", "601-602", "**the defaults** (held out)"): ("every_goal", "ipg_her_500k"),
+    ("FetchPickAndPlace-v4", "601-603", "**the defaults** (held out)"): ("every_goal", "ipg_her_500k"),
     ("FetchSlide-v4", "601", "**the defaults** (held out)"): ("every_goal", "ipg_her_1000k"),
-    ("HandManipulateBlockRotateZ-v1", "601", "**the defaults** (held out)"): ("every_goal", "ipg_her_1000k"),
+    ("HandManipulateBlockRotateZ-v1", "601-602", "**the defaults** (held out)"): ("every_goal", "ipg_her_1000k"),
     ("FetchPush-v4", "601-603", "**`ipg_her_recipe.py`, 300k, the defaults** (held out)"): (
         "every_goal",
         "ipg_her_300k",
@@ -316,7 +316,7 @@ SOURCES = {
         "ipg_her_300k",
     ),
     ("FetchPush-v4", "201-205", "`--target-std 1.0` (held out)"): ("fetch_fresh", "ipg_her_300k"),
-    ("FetchPickAndPlace-v4", "601-602", "**`ipg_her_recipe.py`, 500k, the defaults** (held out)"): (
+    ("FetchPickAndPlace-v4", "601-603", "**`ipg_her_recipe.py`, 500k, the defaults** (held out)"): (
         "every_goal",
         "ipg_her_500k",
     ),
@@ -560,6 +560,7 @@ def test_the_goal_sections_per_seed_figures_are_the_exports():
     rows beside them by their medians: each phrase is rebuilt from its export."""
     push, maze, reach = "ipg_her_300k__FetchPush-v4", "ipg_her_300k__PointMaze_Medium-v3", "ipg_her_300k__HandReach-v3"
     pick, sac = "ipg_her_500k__FetchPickAndPlace-v4", "SB3 SAC+HER (anchor; zoo settings)"
+    BLOCK = "HandManipulateBlockRotateZ-v1"
     phrases = [
         f"**The recipe reaches 0.9 in every held-out seed** (at {per_seed('every_goal', push, 0.9)})",
         f"the\n  last evaluations are {per_seed('every_goal', push)}",
@@ -587,6 +588,16 @@ def test_the_goal_sections_per_seed_figures_are_the_exports():
         f"401-403 (SAC+HER {median(final_eval('one_recipe', 'HandReach-v3', sac, '401-403'))} there)",
         f"$\\gamma$ 0.98 at {median(final_eval('goals', 'HandReach-v3', 'ipg_her_300k', '301-303'))} on seeds 301-303",
     ]
+    runs = curves("every_goal")[f"ipg_her_1000k__{BLOCK}"]
+    block = {seed: run["eval/success_rate"] for seed, run in runs.items()}
+    best = max(block["602"], key=lambda point: point[1])
+    zero_from = next(s for s, _ in block["602"] if all(v == 0 for t, v in block["602"] if t >= s))
+    phrases += [
+        f"On BlockRotateZ, seed 602 passed 0.9 at {stats.first_eval_at(runs['602'], 0.9)[0] / 1000:.0f}k, its best "
+        f"{best[1]:.2f} at {best[0] // 1000}k, and ended at {block['602'][-1][1]:.2f}, every evaluation from "
+        f"{zero_from // 1000}k on; seed 601 passed 0.9 at {stats.first_eval_at(runs['601'], 0.9)[0] / 1000:.0f}k and "
+        f"ended at {block['601'][-1][1]:.2f}",
+    ]
     text = " ".join((ROOT / "docs" / "results.md").read_text().split())
     missing = [p for p in phrases if " ".join(p.split()) not in text]
     assert not missing, f"docs/results.md: the exports give {missing}"
@@ -608,7 +619,7 @@ def test_the_recipe_pages_rows_of_its_defaults_are_the_exports():
         f"ends at {median(final_eval('one_recipe', maze, sac, '401-403'))} on seeds 401-403",
         f"0.9 first reached at a median {kilo(first_eval('every_goal', pick, 'ipg_her_500k', 0.9))} steps (the target: "
         f"by {TARGETS[pick][0] // 1000}k, ending at {TARGETS[pick][1]:.2f} or more), last evaluation "
-        f"{final_eval('every_goal', pick, 'ipg_her_500k', '601-602')} on seeds 601-602",
+        f"{final_eval('every_goal', pick, 'ipg_her_500k', '601-603')} on seeds 601-603",
         f"The held rule loses this task: 0.9 reached {no_seed(first_eval('one_recipe', pick, 'ipg_her_500k', 0.9))} "
         "of 401-403",
         f"{final_eval('every_goal', reach, 'ipg_her_300k', '601-603')} on seeds 601-603 (the target: "
