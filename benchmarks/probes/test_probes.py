@@ -19,6 +19,7 @@ import ppo_kl  # noqa: E402  (update_speed times its update)
 from benchmarks.probes import (  # noqa: E402
     fetch_lifts,
     maze_paths,
+    mean_bounds,
     profile_phases,
     sigma_cycle,
     slide_strikes,
@@ -249,3 +250,14 @@ def test_split_clip_scales_the_mean_network_with_log_sigma_or_on_its_own():
         split_clip.clip(split)(params, 0.5)
         assert params[0].grad.norm().item() == pytest.approx(mean_after, rel=1e-4)
         assert log_std.grad.norm().item() == pytest.approx(0.5 if split else 40 * mean_after / 3)
+
+
+def test_mean_bounds_reads_the_buffer_oldest_first_and_counts_mu_beyond_either_bound():
+    """A full buffer of 4 rows (2 envs) whose write position is 2: rows 2-3 are the oldest. The
+    policy's mu is the observation plus its (zero) goal; bounds [-1, 1]."""
+    obs = np.array([[[0.5], [3.0]], [[-2.0], [2.0]], [[0.0], [0.9]], [[-1.0], [1.5]]])  # (rows, envs, 1)
+    rb = {"obs": obs, "desired_goal": 0 * obs, "actions": np.clip(obs, -1, 1), "filled": 4, "pos": 2}
+    inputs = lambda raw: torch.as_tensor(raw["observation"] + raw["desired_goal"])  # noqa: E731
+    policy = SimpleNamespace(actor_mean=lambda x: x, normalizer=inputs, low=-1.0, high=1.0)
+    rows = mean_bounds.windows(policy, rb, global_step=108, window=4)
+    assert rows == [(104, 0.25, pytest.approx(0.725)), (108, 0.75, 0.875)]  # rows 2-3 (0.0, 0.9, -1.0, 1.5), then 0-1
