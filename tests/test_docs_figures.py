@@ -304,7 +304,7 @@ SOURCES = {
     ("HandReach-v3", "601-603", "SB3 SAC+HER (anchor)"): ("every_goal", "SB3 SAC+HER (anchor; zoo settings)"),
     ("PointMaze_Medium-v3", "601-603", "**the defaults** (held out)"): ("every_goal", "ipg_her_300k"),
     ("FetchPickAndPlace-v4", "601-603", "**the defaults** (held out)"): ("every_goal", "ipg_her_500k"),
-    ("FetchSlide-v4", "601", "**the defaults** (held out)"): ("every_goal", "ipg_her_1000k"),
+    ("FetchSlide-v4", "601-602", "**the defaults** (held out)"): ("every_goal", "ipg_her_1000k"),
     ("HandManipulateBlockRotateZ-v1", "601-602", "**the defaults** (held out)"): ("every_goal", "ipg_her_1000k"),
     ("FetchPush-v4", "601-603", "**`ipg_her_recipe.py`, 300k, the defaults** (held out)"): (
         "every_goal",
