@@ -675,3 +675,18 @@ def test_the_blockrotatez_fall_is_the_probes_committed_output():
         text = " ".join((ROOT / page).read_text().split())
         missing = [p for p in wanted if " ".join(p.split()) not in text]
         assert not missing, f"{page}: the probe's output gives {missing}"
+
+
+def test_all_rows_every_goal_table_is_the_exports():
+    """all_rows.md's every_goal table is report.py's per-task tables of the export, the time columns left out."""
+    expected = []
+    parts = task_tables("every_goal").split("**")  # "", task, its tables, task, ...
+    for task, block in zip(parts[1::2], parts[2::2], strict=True):
+        for line in block.splitlines():
+            cells = split_row(line) if line.startswith("| ") else []
+            if len(cells) >= 12 and cells[0] != "algorithm" and not cells[0].startswith("---"):
+                expected.append(f"| {task}, {' | '.join(cells[i] for i in (0, 1, 2, 3, 4, 6, 8, 10))} |")
+    text = (ROOT / "docs" / "investigations" / "all_rows.md").read_text()
+    table = text.split("<!-- report.py per-task tables: suite every_goal, every task -->")[1].split("\n\n")[0]
+    shown = [line for line in table.splitlines() if line.startswith("| ") and not line.startswith(("| task", "| ---"))]
+    assert len(expected) >= 10 and shown == expected, f"all_rows.md's every_goal table: the export gives {expected}"
