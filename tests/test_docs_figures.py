@@ -677,7 +677,11 @@ def test_the_blockrotatez_fall_is_the_probes_committed_output():
         f"the annealed rates were down to {(1 - 970_000 / 1_000_000) * 100:.0f}% of their start",
     ]
     before = [a for seed in runs for step, _, a in runs[seed] if step <= 970_000]
+    evals = dict(curves("every_goal")["ipg_her_1000k__HandManipulateBlockRotateZ-v1"]["602"]["eval/success_rate"])
+    best = max(evals.items(), key=lambda point: point[1])
     investigation = [
+        f"its best evaluation {best[1]:.2f} at {best[0] // 1000}k, {evals[970_000]:.2f} at 970k, "
+        f"{max(v for step, v in evals.items() if step >= 980_000):.2f} from 980k to the end",
         f"on {min(share) * 100:.0f}-{max(share) * 100:.0f}% of its components",
         f"which did not fall, on {min(others) * 100:.0f}-{max(others) * 100:.0f}%",
         f"their mean $|a|$ is {min(before):.2f}-{max(before):.2f} in every stretch of every seed up to 970k, then in "
